@@ -1,0 +1,117 @@
+"""Padded, static per-robot tensors: the graph half of the TensorDict contract.
+
+A run has a table of robots; ``morph_id`` indexes it. Everything here is static per robot, so
+replay buffers store only ``morph_id`` and the policy chain restores the rest from this table
+(see ``gcnt.nn.graph_lookup``), on env output and on buffer samples alike.
+
+Keys of the table (batch [R] robots, limbs padded to K, A action slots per limb):
+
+    limbs/mask         [R,K]    bool     real limb
+    limbs/type         [R,K]    int64    global limb-type id (0 on padding)
+    limbs/action_mask  [R,K,A]  bool     a motor exists in this slot (never on torso/padding)
+    graph/adj          [R,K,K]  bool
+    graph/dist         [R,K,K]  uint8    hop distance clamped to DIST_PAD-1; DIST_PAD on padding
+    graph/wl           [R,W]    float32  WL colour counts
+    graph/parent       [R,K]    int64    parent limb index (-1 for torso and padding)
+    graph/traversal    [R,K,3]  int64    SWAT pre/in/post-order positions (0 on padding)
+    graph/ppr          [R,K,K]  float32  personalised PageRank (0 on padding)
+    graph/laplacian    [R,K,K]  float32  normalised Laplacian (0 on padding)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from gcnt.morphology import DIST_PAD, Robot
+
+#: Keys a policy needs from the table; the env emits the contract's subset of them.
+STATIC_KEYS: tuple[tuple[str, str], ...] = (
+    ("limbs", "mask"),
+    ("limbs", "type"),
+    ("limbs", "action_mask"),
+    ("graph", "adj"),
+    ("graph", "dist"),
+    ("graph", "wl"),
+    ("graph", "parent"),
+    ("graph", "traversal"),
+    ("graph", "ppr"),
+    ("graph", "laplacian"),
+)
+
+
+class RobotTooLargeError(ValueError):
+    """A robot has more limbs or joints per limb than the padded size allows."""
+
+
+def robot_table(
+    robots: Sequence[Robot], max_limbs: int | None = None, num_actions: int | None = None
+) -> TensorDict:
+    """Build the padded static table of ``robots`` (batch [R]).
+
+    ``max_limbs`` defaults to the largest robot; ``num_actions`` (A, action slots per limb) to the
+    largest joints-per-limb of the robots' families.
+    """
+    if not robots:
+        raise ValueError("robot_table needs at least one robot")
+    k = max_limbs or max(r.num_limbs for r in robots)
+    a = num_actions or max(r.max_joints_per_limb for r in robots)
+    for r in robots:
+        if r.num_limbs > k:
+            raise RobotTooLargeError(
+                f"robot {r.name!r} ({r.source}) has {r.num_limbs} limbs; this table/model allows "
+                f"at most {k} (raise max_limbs)"
+            )
+        widest = max(len(j) for j in r.actuator_ids)
+        if widest > a:
+            raise RobotTooLargeError(
+                f"robot {r.name!r} has a limb with {widest} motors; only {a} action slots per limb"
+            )
+    n, w = len(robots), len(robots[0].graph.wl)
+    mask = np.zeros((n, k), bool)
+    types = np.zeros((n, k), np.int64)
+    amask = np.zeros((n, k, a), bool)
+    adj = np.zeros((n, k, k), bool)
+    dist = np.full((n, k, k), DIST_PAD, np.uint8)
+    wl = np.zeros((n, w), np.float32)
+    parent = np.full((n, k), -1, np.int64)
+    trav = np.zeros((n, k, 3), np.int64)
+    ppr = np.zeros((n, k, k), np.float32)
+    lap = np.zeros((n, k, k), np.float32)
+    for i, r in enumerate(robots):
+        m, g = r.num_limbs, r.graph
+        if len(g.wl) != w:
+            raise ValueError(f"robot {r.name!r}: WL vector size {len(g.wl)} != {w}")
+        mask[i, :m] = True
+        types[i, :m] = r.global_types
+        for limb, motors in enumerate(r.actuator_ids):
+            amask[i, limb, : len(motors)] = True
+        adj[i, :m, :m] = g.adj
+        dist[i, :m, :m] = np.clip(g.dist, 0, DIST_PAD - 1)
+        wl[i] = g.wl
+        parent[i, :m] = r.parents
+        trav[i, :m] = g.traversal
+        ppr[i, :m, :m] = g.ppr
+        lap[i, :m, :m] = g.laplacian
+    return TensorDict(
+        {
+            "limbs": {
+                "mask": torch.from_numpy(mask),
+                "type": torch.from_numpy(types),
+                "action_mask": torch.from_numpy(amask),
+            },
+            "graph": {
+                "adj": torch.from_numpy(adj),
+                "dist": torch.from_numpy(dist),
+                "wl": torch.from_numpy(wl),
+                "parent": torch.from_numpy(parent),
+                "traversal": torch.from_numpy(trav),
+                "ppr": torch.from_numpy(ppr),
+                "laplacian": torch.from_numpy(lap),
+            },
+        },
+        batch_size=[n],
+    )

@@ -1,0 +1,78 @@
+"""Limb-type vocabularies.
+
+Two vocabularies exist:
+
+* the *family-level* type, a 4-slot one-hot inside the 19-d SMPENV limb observation (torso, then
+  the 1st, 2nd and 3rd segment of a chain), as in SMP/AMORPHEUS/SWAT;
+* the *global* limb-type id, one vocabulary shared by all families; GCNT's GCN and WL modules use
+  it, so that a thigh is a thigh whichever robot it belongs to.
+
+Types are derived from body names, family by family, so that a robot file a user writes by hand
+(with the family's naming convention) gets the same types as the generated ones.
+"""
+
+from __future__ import annotations
+
+import re
+
+#: Global limb-type vocabulary shared by every family. Append only: ids are stored in checkpoints.
+GLOBAL_LIMB_TYPES: tuple[str, ...] = (
+    "torso",
+    "thigh",
+    "shin",
+    "foot",
+    "upper_arm",
+    "lower_arm",
+    "unimal_limb",
+)
+GLOBAL_TYPE_ID: dict[str, int] = {name: i for i, name in enumerate(GLOBAL_LIMB_TYPES)}
+
+#: Number of slots of the family-level one-hot in the SMPENV observation.
+FAMILY_TYPE_SLOTS = 4
+
+#: Families and the most hinge joints one of their limbs may carry.
+MAX_JOINTS_PER_LIMB: dict[str, int] = {
+    "walker": 1,
+    "cheetah": 1,
+    "hopper": 1,
+    "humanoid": 1,
+    "unimal": 2,
+}
+FAMILIES: tuple[str, ...] = tuple(MAX_JOINTS_PER_LIMB)
+
+# (regex on the body name, global type, family-level slot); first match wins.
+_RULES: dict[str, tuple[tuple[str, str, int], ...]] = {
+    # walker limbs are left1/left2/left3, right1/... : segment k of a leg
+    "walker": ((r"1$", "thigh", 1), (r"2$", "shin", 2), (r"3$", "foot", 3)),
+    "cheetah": ((r"thigh$", "thigh", 1), (r"shin$", "shin", 2), (r"foot$", "foot", 3)),
+    # hopper: lower_leg counts as leg (spec); leg is the shin of the chain
+    "hopper": ((r"thigh$", "thigh", 1), (r"leg$", "shin", 2), (r"foot$", "foot", 3)),
+    # humanoid: 4 real types; the family slot is the segment position in its chain
+    # (thigh/upper arm 1st, shin/lower arm 2nd), see README "Deviations".
+    "humanoid": (
+        (r"thigh$", "thigh", 1),
+        (r"shin$", "shin", 2),
+        (r"upper_arm$", "upper_arm", 1),
+        (r"lower_arm$", "lower_arm", 2),
+    ),
+    "unimal": ((r".*", "unimal_limb", 1),),
+}
+
+
+class UnknownLimbError(ValueError):
+    """A body name matches no limb type of its family."""
+
+
+def limb_type(family: str, body_name: str, is_root: bool) -> tuple[int, int]:
+    """Return ``(global_type_id, family_slot)`` of a body of ``family``."""
+    if is_root:
+        return GLOBAL_TYPE_ID["torso"], 0
+    if family not in _RULES:
+        raise ValueError(f"unknown robot family {family!r}; known: {', '.join(FAMILIES)}")
+    for pattern, gtype, slot in _RULES[family]:
+        if re.search(pattern, body_name):
+            return GLOBAL_TYPE_ID[gtype], slot
+    raise UnknownLimbError(
+        f"body {body_name!r} matches no limb type of family {family!r} "
+        f"(expected names ending in: {', '.join(p for p, _, _ in _RULES[family])})"
+    )
