@@ -11,6 +11,8 @@ import sys
 #: sub-command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "robots": ("gcnt.commands.robots", "list robots and benchmarks; rebuild the SMPENV robot files"),
+    "train": ("gcnt.commands.train", "train a policy from a recipe, or resume a run"),
+    "eval": ("gcnt.commands.eval", "evaluate a run's deterministic policy per robot"),
 }
 
 

@@ -1,0 +1,149 @@
+"""A run's directory: resolved recipe, metrics, checkpoints, eval results, videos.
+
+Nothing here depends on W&B being reachable: ``metrics.jsonl`` (one JSON line per log step) is the
+local record, and W&B (offline by default) or CSV logging mirrors it through torchrl's loggers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from gcnt.recipes import Recipe, load_recipe, save_recipe
+
+log = logging.getLogger(__name__)
+
+RECIPE_FILE = "recipe.yaml"
+METRICS_FILE = "metrics.jsonl"
+CHECKPOINT = "checkpoints/last.pt"
+
+
+class RunDir:
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    @classmethod
+    def for_recipe(cls, recipe: Recipe) -> RunDir:
+        path = recipe.run_dir or f"runs/{recipe.benchmark}/{recipe.network.name}/seed{recipe.seed}"
+        return cls(path)
+
+    # --- files
+    @property
+    def recipe_path(self) -> Path:
+        return self.path / RECIPE_FILE
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.path / METRICS_FILE
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.path / CHECKPOINT
+
+    def create(self, recipe: Recipe) -> None:
+        if self.checkpoint_path.exists():
+            raise FileExistsError(
+                f"{self.path} already holds a run; continue it with `gcnt train --resume "
+                f"{self.path}` or choose another run_dir=..."
+            )
+        (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
+        recipe.run_dir = str(self.path)
+        save_recipe(recipe, self.recipe_path)
+        self.metrics_path.unlink(missing_ok=True)
+
+    def load_recipe(self, overrides: list[str] | None = None) -> Recipe:
+        if not self.recipe_path.exists():
+            raise FileNotFoundError(f"{self.path}: no {RECIPE_FILE}; is this a gcnt run directory?")
+        return load_recipe(self.recipe_path, overrides)
+
+    # --- metrics
+    def log_metrics(self, row: dict[str, Any]) -> None:
+        with self.metrics_path.open("a") as f:
+            f.write(json.dumps(row, sort_keys=True) + "\n")
+
+    def read_metrics(self) -> list[dict[str, Any]]:
+        if not self.metrics_path.exists():
+            return []
+        return [json.loads(line) for line in self.metrics_path.read_text().splitlines() if line]
+
+    def truncate_metrics(self, env_steps: int) -> None:
+        """Drop lines logged after the checkpoint a resumed run starts from."""
+        rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
+        tmp = self.metrics_path.with_suffix(".tmp")
+        tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+        os.replace(tmp, self.metrics_path)
+
+    # --- checkpoints
+    def save_checkpoint(self, state: dict[str, Any]) -> None:
+        """Atomic write: a run killed while saving keeps its previous checkpoint."""
+        state = {**state, "rng": rng_state()}
+        tmp = self.checkpoint_path.with_suffix(".tmp")
+        torch.save(state, tmp)
+        os.replace(tmp, self.checkpoint_path)
+        log.debug("checkpoint at %s env steps", state.get("env_steps"))
+
+    def load_checkpoint(self, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+        if not self.checkpoint_path.exists():
+            raise FileNotFoundError(f"{self.path}: no checkpoint ({CHECKPOINT})")
+        return torch.load(self.checkpoint_path, map_location=map_location, weights_only=False)
+
+
+def rng_state() -> dict[str, Any]:
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+    }
+
+
+def set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+
+
+def seed_everything(seed: int) -> None:
+    torch.manual_seed(seed)
+    np.random.seed(seed)
+    random.seed(seed)
+
+
+def make_logger(recipe: Recipe, run: RunDir):
+    """torchrl logger per the recipe (None for backend "none")."""
+    cfg = recipe.logger
+    method = recipe.network.name
+    name = cfg.name or f"{recipe.benchmark}-{method}-seed{recipe.seed}"
+    if cfg.backend == "none":
+        return None
+    if cfg.backend == "csv":
+        from torchrl.record.loggers import CSVLogger
+
+        return CSVLogger(exp_name=name, log_dir=str(run.path / "csv"))
+    from torchrl.record.loggers import WandbLogger
+
+    os.environ.setdefault("WANDB_SILENT", "true")
+    project = cfg.project or f"gcnt-{_slug(recipe.benchmark)}"
+    group = cfg.group or f"{recipe.benchmark}-{method}"
+    return WandbLogger(
+        exp_name=name,
+        offline=cfg.mode == "offline",
+        save_dir=str(run.path),
+        project=project,
+        group=group,
+        config=recipe.to_dict(),
+        # stable across processes, so a resumed run continues the same W&B run
+        id=_slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}"),
+        resume="allow",
+    )
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "-" for c in text.replace("+", "p"))

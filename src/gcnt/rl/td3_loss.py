@@ -1,0 +1,87 @@
+"""TD3 with per-limb twin critics, built on torchrl's ``TD3Loss``.
+
+Each critic outputs one Q per limb. torchrl's loss does the target-policy smoothing, the twin
+minimum and the target networks; two things are added here, because a LossModule masks whole
+samples, never limbs:
+
+* the TD target is per robot: ``r + γ (1 - terminated) · mean over real limbs of min(Q1', Q2')``,
+  and every real limb's Q is regressed to it (``PerRobotTD0``);
+* losses come back unreduced (``reduction="none"``, one value per limb) and are averaged over the
+  limbs that carry a motor (the torso and padding are excluded) with :func:`masked_mean`.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.objectives import TD3Loss
+from torchrl.objectives.value import TD0Estimator
+
+ACTION = ("limbs", "action")
+ACTION_MASK = ("limbs", "action_mask")
+LIMB_Q = ("limbs", "state_action_value")
+
+
+def limb_mask(td: TensorDictBase) -> torch.Tensor:
+    """[*B, K] bool: limbs that carry at least one motor."""
+    return td.get(ACTION_MASK).any(-1)
+
+
+def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean over the True entries of ``mask`` (values and mask broadcast to the same shape)."""
+    mask = mask.expand_as(values).to(values.dtype)
+    return (values * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+class PerRobotTD0(TD0Estimator):
+    """TD(0) target from the masked mean of the per-limb next Q (shape [*B, 1, 1])."""
+
+    def value_estimate(self, tensordict, target_params=None, next_value=None, **kwargs):
+        q_next = tensordict.get(("next", self.tensor_keys.value))  # [*B, K, 1]
+        mask = limb_mask(tensordict).unsqueeze(-1).to(q_next.dtype)  # [*B, K, 1]
+        v_next = (q_next * mask).sum(-2) / mask.sum(-2).clamp_min(1.0)  # [*B, 1]
+        target = super().value_estimate(tensordict, next_value=v_next, **kwargs)
+        return target.unsqueeze(-1)  # the loss squeezes the last dim and broadcasts over limbs
+
+
+def make_td3_loss(
+    actor: torch.nn.Module,
+    critic: torch.nn.Module,
+    *,
+    gamma: float,
+    policy_noise: float,
+    noise_clip: float,
+) -> TD3Loss:
+    loss = TD3Loss(
+        actor_network=actor,
+        qvalue_network=critic,
+        bounds=(-1.0, 1.0),  # a nested action spec is rejected by TD3Loss (torchrl-notes)
+        num_qvalue_nets=2,
+        policy_noise=policy_noise,
+        noise_clip=noise_clip,
+        loss_function="l2",
+        reduction="none",
+        deactivate_vmap=True,
+    )
+    loss.set_keys(action=ACTION, state_action_value=LIMB_Q)
+    estimator = PerRobotTD0(gamma=gamma, value_network=None)
+    estimator.set_keys(
+        value=LIMB_Q,
+        reward=loss.tensor_keys.reward,
+        done=loss.tensor_keys.done,
+        terminated=loss.tensor_keys.terminated,
+    )
+    loss._value_estimator = estimator  # what make_value_estimator does, with our estimator
+    return loss
+
+
+def critic_loss(loss: TD3Loss, batch: TensorDictBase) -> tuple[torch.Tensor, dict]:
+    """Twin-critic loss averaged over motor limbs; ``batch`` must hold the static keys."""
+    per_limb, meta = loss.value_loss(batch)  # [*B, K]
+    return masked_mean(per_limb, limb_mask(batch)), meta
+
+
+def actor_loss(loss: TD3Loss, batch: TensorDictBase) -> torch.Tensor:
+    """-Q1 of the actor's action, averaged over motor limbs."""
+    per_limb, _ = loss.actor_loss(batch)  # [*B, K]
+    return masked_mean(per_limb, limb_mask(batch))
