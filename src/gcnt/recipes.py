@@ -234,24 +234,47 @@ def recipe_from_dict(
     data: dict[str, Any], overrides: list[str] | None = None, source: str = "<dict>"
 ) -> Recipe:
     data = yaml.safe_load(yaml.safe_dump(data or {}))  # deep copy, plain types
-    for o in overrides or []:
-        _apply_override(data, o)
     try:
+        for o in overrides or []:
+            _apply_override(data, o)
         return _build(Recipe, data, "")
     except RecipeError as e:
         raise RecipeError(f"{source}: {e}") from None
 
 
-def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
-    """Load a recipe file, apply ``section.key=value`` overrides, validate everything."""
-    path = Path(path)
+def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """A recipe file's mapping, with ``base: other.yaml`` (relative to the file) merged under it."""
+    if path.resolve() in chain:
+        raise RecipeError(f"{path}: recipe bases form a cycle: {' -> '.join(map(str, chain))}")
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except OSError as e:
         raise RecipeError(f"{path}: cannot read recipe ({e.strerror})") from e
     except yaml.YAMLError as e:
         raise RecipeError(f"{path}: not valid YAML ({e})") from e
-    return recipe_from_dict(data, overrides, source=str(path))
+    if not isinstance(data, dict):
+        raise RecipeError(f"{path}: a recipe must be a mapping of sections")
+    base = data.pop("base", None)
+    if base is None:
+        return data
+    return _merge(_read_yaml(path.parent / base, (*chain, path.resolve())), data)
+
+
+def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
+    """Load a recipe file, apply ``section.key=value`` overrides, validate everything.
+
+    A recipe may start from another with ``base: relative/path.yaml``; its keys override the
+    base's, section by section.
+    """
+    path = Path(path)
+    return recipe_from_dict(_read_yaml(path), overrides, source=str(path))
 
 
 def save_recipe(recipe: Recipe, path: str | Path) -> None:

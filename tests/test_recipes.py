@@ -1,0 +1,79 @@
+from pathlib import Path
+
+import pytest
+
+from gcnt.recipes import RecipeError, load_recipe, recipe_from_dict
+
+RECIPES = sorted(Path(__file__).parents[1].joinpath("recipes").rglob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(p.parents[1])))
+def test_every_recipe_file_validates(path):
+    recipe = load_recipe(path)
+    assert recipe.optim.policy_delay >= 1
+
+
+def test_paper_td3_settings_in_the_smpenv_recipes():
+    r = load_recipe("recipes/smpenv/walker.yaml")
+    assert (r.optim.lr, r.optim.gamma, r.optim.tau, r.optim.policy_delay) == (1e-4, 0.99, 0.046, 2)
+    assert (r.optim.policy_noise, r.optim.noise_clip, r.optim.max_grad_norm) == (0.2, 0.5, 0.1)
+    assert (r.replay_buffer.batch_size, r.collector.init_random_frames) == (100, 10_000)
+    assert r.collector.exploration_noise == 0.126 and r.collector.total_frames == 10_000_000
+    assert load_recipe("recipes/smpenv/cwhh.yaml").collector.total_frames == 20_000_000
+
+
+def test_dotted_overrides_are_typed():
+    r = load_recipe(
+        "recipes/smpenv/walker.yaml",
+        ["network.name=swat", "seed=2", "optim.lr=3e-4", "network.kwargs.d_model=64"],
+    )
+    assert (r.network.name, r.seed, r.optim.lr) == ("swat", 2, 3e-4)
+    assert r.network.kwargs == {"d_model": 64}
+    assert isinstance(r.optim.lr, float)
+
+
+def test_base_is_merged_section_by_section():
+    r = load_recipe("recipes/smpenv/ablations/humanoid_no_gcn.yaml")
+    assert r.network.name == "gcnt_no_gcn"
+    assert r.benchmark == "Humanoid++" and r.optim.tau == 0.046
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("optim.lrr=1", "unknown recipe key 'optim.lrr'; did you mean 'lr'?"),
+        ("seeds=1", "did you mean 'seed'?"),
+        ("collecter.total_frames=5", "did you mean 'collector'?"),
+        ("collector.schedule=fast", "'fast' is not one of 'paper', 'mixed'"),
+        ("seed=abc", "seed: expected int"),
+        ("optim=3", "expected a mapping"),
+        ("seed", "must look like section.key=value"),
+    ],
+)
+def test_bad_keys_and_values_name_the_culprit(override, message):
+    with pytest.raises(RecipeError) as e:
+        load_recipe("recipes/smpenv/walker.yaml", [override])
+    assert message in str(e.value)
+    assert "walker.yaml" in str(e.value)
+
+
+def test_misspelt_key_in_a_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("env:\n  robot: [walker_7_main]\n")
+    with pytest.raises(RecipeError, match=r"bad.yaml: unknown recipe key 'env.robot'; did you mean 'robots'"):
+        load_recipe(bad)
+
+
+def test_malformed_yaml_and_base_cycle(tmp_path):
+    (tmp_path / "a.yaml").write_text("base: b.yaml\n")
+    (tmp_path / "b.yaml").write_text("base: a.yaml\n")
+    with pytest.raises(RecipeError, match="cycle"):
+        load_recipe(tmp_path / "a.yaml")
+    (tmp_path / "c.yaml").write_text("env: [unclosed\n")
+    with pytest.raises(RecipeError, match="not valid YAML"):
+        load_recipe(tmp_path / "c.yaml")
+
+
+def test_defaults_round_trip():
+    r = recipe_from_dict({})
+    assert recipe_from_dict(r.to_dict()) == r
