@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
+from gcnt.cli import main as cli_main
 from gcnt.morphology import load_robot
-from gcnt.morphology.benchmarks import load_benchmarks, morphologies_dir, resolve_robots
+from gcnt.morphology.benchmarks import (
+    BenchmarkFileError,
+    load_benchmarks,
+    morphologies_dir,
+    resolve_robots,
+)
 from gcnt.morphology.smpenv import (
     SMPENV_FULL_ROBOTS,
     SMPENV_ROBOTS,
@@ -281,3 +288,47 @@ def test_resolve_robots():
         resolve_robots(["Walkr++:train"])
     with pytest.raises(ValueError, match="split"):
         resolve_robots(["Walker++:validation"])
+
+
+def test_benchmark_file_errors_name_the_culprit(tmp_path):
+    bad = tmp_path / "bench.yaml"
+    bad.write_text("Walker++:\n  train: [walker_2_main, walker_9_main]\n  test: []\n")
+    with pytest.raises(BenchmarkFileError, match="walker_9_main") as info:
+        load_benchmarks(bad)
+    assert str(bad) in str(info.value)
+    bad.write_text("Walker++:\n  train: [walker_2_main]\n  validate: [walker_3_main]\n")
+    with pytest.raises(BenchmarkFileError, match="validate"):
+        load_benchmarks(bad)
+    bad.write_text("Walker++:\n  train: [walker_2_main]\n  test: [walker_2_main]\n")
+    with pytest.raises(BenchmarkFileError, match="both"):
+        load_benchmarks(bad)
+
+
+def test_morphologies_dir_override(tmp_path, monkeypatch):
+    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(tmp_path))
+    assert morphologies_dir() == tmp_path
+    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(tmp_path / "missing"))
+    with pytest.raises(FileNotFoundError, match="GCNT_MORPHOLOGIES"):
+        morphologies_dir()
+
+
+def test_robots_command(tmp_path, monkeypatch, capsys):
+    assert cli_main(["robots"]) == 0
+    out = capsys.readouterr().out
+    assert "CWHH++:test" in out and "humanoid_2d_8_right_knee" in out
+    assert "hopper_5  " in out and "lower_leg" in out
+
+    assert cli_main(["robots", "--check"]) == 0
+    copy = tmp_path / "morph"
+    shutil.copytree(morphologies_dir(), copy)
+    (copy / "smpenv" / "hopper_4.xml").write_text(build_mjcf("hopper_4").replace("200", "201"))
+    (copy / "smpenv" / "walker_2_main.xml").unlink()
+    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(copy))
+    capsys.readouterr()
+    assert cli_main(["robots", "--check"]) == 1
+    out = capsys.readouterr().out
+    assert "hopper_4.xml" in out and "walker_2_main.xml: missing" in out
+    assert cli_main(["robots", "--rebuild"]) == 0
+    assert cli_main(["robots", "--check"]) == 0
+    assert cli_main(["robots", "walker_9"]) == 2
+    assert "walker_" in capsys.readouterr().err

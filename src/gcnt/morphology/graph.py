@@ -160,12 +160,15 @@ def traversal_indices(parents: np.ndarray) -> np.ndarray:
 def personalized_pagerank(adj: np.ndarray, damping: float = 0.9) -> np.ndarray:
     """Row i: stationary visit probabilities of a random walk that restarts at limb i.
 
-    PPR = (1 - d) (I - d T)^-1 with T the row-stochastic transition matrix D^-1 A.
+    PPR = (1 - d) (I - d T)^-1 with T the row-stochastic transition matrix D^-1 A. A limb with no
+    neighbours (a torso-only robot) keeps the walk where it is, so every row sums to 1.
     """
     k = len(adj)
     a = adj.astype(np.float64)
     deg = a.sum(1, keepdims=True)
     t = np.divide(a, deg, out=np.zeros_like(a), where=deg > 0)
+    isolated = deg[:, 0] == 0
+    t[isolated, isolated] = 1.0
     return ((1 - damping) * np.linalg.inv(np.eye(k) - damping * t)).astype(np.float32)
 
 

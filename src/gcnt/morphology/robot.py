@@ -82,7 +82,7 @@ def _family_of(model: mujoco.MjModel, root: ET.Element, source: str) -> str:
             return fam
     raise RobotFileError(
         f"{source}: cannot tell the robot family of model {name!r}; start the model name with "
-        f"one of {', '.join(FAMILIES)} or add <custom><text name=\"{FAMILY_TEXT}\" data=...>"
+        f'one of {", ".join(FAMILIES)} or add <custom><text name="{FAMILY_TEXT}" data=...>'
     )
 
 
@@ -142,9 +142,7 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
         body_names.append(bname)
         start, num = int(model.body_jntadr[b]), int(model.body_jntnum[b])
         hinges = [
-            j
-            for j in range(start, start + num)
-            if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+            j for j in range(start, start + num) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
         ]
         if i == 0:
             hinges = []  # the torso's root joints are unactuated
@@ -164,7 +162,9 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
         jnames.append(tuple(model.joint(j).name for j in hinges))
         jids.append(tuple(hinges))
         aids.append(tuple(motor_of[j] for j in hinges))
-        ranges.append(np.array([model.jnt_range[j] for j in hinges], dtype=np.float64).reshape(-1, 2))
+        ranges.append(
+            np.array([model.jnt_range[j] for j in hinges], dtype=np.float64).reshape(-1, 2)
+        )
         try:
             g, s = limb_type(family, bname, is_root=i == 0)
         except UnknownLimbError as e:
