@@ -13,6 +13,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "robots": ("gcnt.commands.robots", "list robots and benchmarks; rebuild the SMPENV robot files"),
     "train": ("gcnt.commands.train", "train a policy from a recipe, or resume a run"),
     "eval": ("gcnt.commands.eval", "evaluate a run's deterministic policy per robot"),
+    "params": ("gcnt.commands.params", "parameter counts of every method (paper tables 7-8)"),
+    "bench-nn": ("gcnt.commands.bench_nn", "forward+backward time of GCNT vs AMORPHEUS (TD3)"),
 }
 
 

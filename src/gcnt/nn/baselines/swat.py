@@ -1,0 +1,69 @@
+"""SWAT (Hong et al. 2022): AMORPHEUS plus structural information.
+
+* Traversal position embeddings: each limb's pre-order index, and its in-order and post-order
+  index in the left-child right-sibling binary tree (``graph/traversal``), each through its own
+  embedding table (widths 42/42/44, concatenated to d = 128), added to the input embedding.
+  The tables have ``max_limbs`` rows: a table with a larger robot raises ``RobotTooLargeError``
+  naming it when the chain is built or the robot table is swapped.
+* Relational bias: Linear(3 → heads) of [personalised PageRank, normalised Laplacian,
+  hop distance / N] per limb pair, added to the attention logits of the first layer only.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import Tensor, nn
+
+from gcnt.nn import keys as K
+from gcnt.nn.chain import Backbone
+from gcnt.nn.config import SWATConfig
+from gcnt.nn.gcnt import encoder_of
+from gcnt.nn.stages import (
+    limb_encoder_stage,
+    limb_head_stage,
+    relational_bias_stage,
+    transformer_stage,
+)
+
+
+class TraversalEmbedding(nn.Module):
+    """embed + [E_pre(pre) ‖ E_in(in) ‖ E_post(post)]."""
+
+    def __init__(self, widths: tuple[int, int, int], max_limbs: int) -> None:
+        super().__init__()
+        self.max_limbs = max_limbs
+        self.tables = nn.ModuleList(nn.Embedding(max_limbs, w) for w in widths)
+
+    def forward(self, embed: Tensor, traversal: Tensor) -> Tensor:
+        if traversal.device.type == "cpu" and traversal.numel():
+            top = int(traversal.max())
+            if top >= self.max_limbs:
+                raise ValueError(
+                    f"SWAT: traversal position {top} needs a robot with more than "
+                    f"max_limbs={self.max_limbs} limbs (raise max_limbs)"
+                )
+        pe = torch.cat([t(traversal[..., i]) for i, t in enumerate(self.tables)], -1)
+        return embed + pe.to(embed.dtype)
+
+
+def swat_backbone(cfg: SWATConfig, in_dim: int, out_dim: int) -> Backbone:
+    return Backbone(
+        [
+            ("encoder", limb_encoder_stage(in_dim, cfg.d_model, (), cfg.input_scale)),
+            (
+                "traversal",
+                TensorDictModule(
+                    TraversalEmbedding(cfg.traversal_widths, cfg.max_limbs),
+                    [K.EMBED, K.TRAVERSAL],
+                    [K.HIDDEN],
+                ),
+            ),
+            ("relational_bias", relational_bias_stage(cfg.heads)),
+            ("transformer", transformer_stage(encoder_of(cfg, "first"), K.HIDDEN, with_bias=True)),
+            ("head", limb_head_stage(cfg.d_model, in_dim, out_dim)),
+        ],
+        static_keys=(K.TRAVERSAL, K.PPR, K.LAPLACIAN, K.DIST),
+        max_limbs=cfg.max_limbs,
+        name="SWAT",
+    )

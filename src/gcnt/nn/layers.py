@@ -1,0 +1,134 @@
+"""Plain torch building blocks shared by GCNT and the baselines.
+
+:class:`EncoderLayer` is the one Transformer encoder layer of the package (GCNT, AMORPHEUS and SWAT
+all use it): multi-head self-attention through ``F.scaled_dot_product_attention`` with an additive
+float mask (a learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward block, with
+post-LN (AMORPHEUS) or pre-LN (MetaMorph) residuals. Its parameter shapes match
+``torch.nn.TransformerEncoderLayer``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, activation=nn.ReLU) -> nn.Sequential:
+    """Linear layers ``in → hidden… → out`` with ``activation`` between them (none at the end)."""
+    dims = [in_dim, *hidden, out_dim]
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(dims[:-1], dims[1:], strict=True)):
+        layers.append(nn.Linear(a, b))
+        if i < len(dims) - 2:
+            layers.append(activation())
+    return nn.Sequential(*layers)
+
+
+def key_padding_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
+    """Additive attention mask [N, 1, 1, K]: 0 on real keys, -inf on padded ones."""
+    zero = torch.zeros((), dtype=dtype, device=mask.device)
+    neg = torch.full((), float("-inf"), dtype=dtype, device=mask.device)
+    return torch.where(mask, zero, neg)[:, None, None, :]
+
+
+class EncoderLayer(nn.Module):
+    """Transformer encoder layer whose attention logits take an additive bias.
+
+    ``forward(x [N, K, d], attn_mask [N, H or 1, K, K] float)``: the mask is added to
+    ``q·k/√d_h`` before the softmax (bias + ``-inf`` on padded keys).
+    """
+
+    def __init__(
+        self, d_model: int, heads: int, ff: int, dropout: float = 0.0, norm_first: bool = False
+    ) -> None:
+        super().__init__()
+        if d_model % heads:
+            raise ValueError(f"d_model {d_model} not divisible by heads {heads}")
+        self.heads = heads
+        self.dropout = dropout
+        self.norm_first = norm_first
+        self.qkv = nn.Linear(d_model, 3 * d_model)
+        self.proj = nn.Linear(d_model, d_model)
+        self.ff1 = nn.Linear(d_model, ff)
+        self.ff2 = nn.Linear(ff, d_model)
+        self.norm1 = nn.LayerNorm(d_model)
+        self.norm2 = nn.LayerNorm(d_model)
+        self.drop = nn.Dropout(dropout)
+
+    def attention(self, x: Tensor, attn_mask: Tensor) -> Tensor:
+        n, k, d = x.shape
+        q, kk, v = self.qkv(x).view(n, k, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
+        out = F.scaled_dot_product_attention(
+            q, kk, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
+        )
+        return self.proj(out.transpose(1, 2).reshape(n, k, d))
+
+    def feed_forward(self, x: Tensor) -> Tensor:
+        return self.ff2(self.drop(F.relu(self.ff1(x))))
+
+    def forward(self, x: Tensor, attn_mask: Tensor) -> Tensor:
+        if self.norm_first:
+            x = x + self.drop(self.attention(self.norm1(x), attn_mask))
+            return x + self.drop(self.feed_forward(self.norm2(x)))
+        x = self.norm1(x + self.drop(self.attention(x, attn_mask)))
+        return self.norm2(x + self.drop(self.feed_forward(x)))
+
+
+class TransformerEncoder(nn.Module):
+    """A stack of :class:`EncoderLayer` with an optional final LayerNorm.
+
+    ``forward(x [N, K, d], mask [N, K] bool, bias [N, Lb, H, K, K] | None)``. How the bias tensor
+    maps onto layers is ``bias_mode``: "per_layer" (Lb = layers), "shared" (Lb = 1, every layer)
+    or "first" (Lb = 1, first layer only, as SWAT's relational bias).
+    """
+
+    BIAS_MODES = ("per_layer", "shared", "first")
+
+    def __init__(
+        self,
+        d_model: int,
+        layers: int,
+        heads: int,
+        ff: int,
+        dropout: float = 0.0,
+        norm_first: bool = False,
+        final_norm: bool = True,
+        bias_mode: str = "per_layer",
+    ) -> None:
+        super().__init__()
+        if bias_mode not in self.BIAS_MODES:
+            raise ValueError(f"bias_mode must be one of {self.BIAS_MODES}, got {bias_mode!r}")
+        self.bias_mode = bias_mode
+        self.heads = heads
+        self.layers = nn.ModuleList(
+            EncoderLayer(d_model, heads, ff, dropout, norm_first) for _ in range(layers)
+        )
+        self.norm = nn.LayerNorm(d_model) if final_norm else None
+
+    def forward(self, x: Tensor, mask: Tensor, bias: Tensor | None = None) -> Tensor:
+        base = key_padding_bias(mask, x.dtype)  # [N, 1, 1, K]
+        for i, layer in enumerate(self.layers):
+            if bias is None:
+                m = base
+            elif self.bias_mode == "per_layer":
+                m = base + bias[:, i]
+            elif self.bias_mode == "shared" or i == 0:
+                m = base + bias[:, 0]
+            else:
+                m = base
+            x = layer(x, m)
+        return self.norm(x) if self.norm is not None else x
+
+
+def flatten_lead(x: Tensor, keep: int) -> tuple[Tensor, torch.Size]:
+    """Merge all but the last ``keep`` dims into one: ``[*L, ...] → [N, ...]``."""
+    lead = x.shape[: x.dim() - keep]
+    return x.reshape(-1, *x.shape[x.dim() - keep :]), lead
+
+
+def scaled(x: Tensor, d_model: int, on: bool) -> Tensor:
+    return x * math.sqrt(d_model) if on else x
