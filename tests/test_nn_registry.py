@@ -54,7 +54,7 @@ def test_chains_start_with_graph_lookup_and_read_only_env_keys(table):
             name, "td3_critic", table=table, obs_dim=F_OBS, num_actions=1, **small(name)
         )
         assert isinstance(critic, TensorDictSequential)
-        assert isinstance(critic["lookup"], GraphLookup)
+        assert isinstance(critic["lookup"], GraphLookup) and critic[0] is critic["lookup"]
         assert set(critic.in_keys) == {"morph_id", ("limbs", "obs"), ("limbs", "action")}
         actor = make_network(
             name, "td3_actor", table=table, obs_dim=F_OBS, num_actions=1, **small(name)

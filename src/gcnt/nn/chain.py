@@ -24,6 +24,18 @@ from gcnt.nn.heads import final_keys, probabilistic_actor, role_output
 from gcnt.nn.stages import input_stage
 
 
+class Chain(TensorDictSequential):
+    """A ``TensorDictSequential`` of named stages that can also be indexed by position:
+    ``chain["gcn"]`` or ``chain[0]`` (the GraphLookup)."""
+
+    def __getitem__(self, index):
+        if isinstance(index, int):
+            return list(self.module.values())[index]
+        if isinstance(index, slice):
+            return TensorDictSequential(*list(self.module.values())[index])
+        return self.module[index]
+
+
 @dataclass
 class Backbone:
     """A method's stages from ``limbs/input`` to ``limbs/out`` (head included)."""
@@ -62,7 +74,7 @@ def assemble(
         stages[name] = st
     stages["output"] = role_output(role, num_actions, ppo_std, ppo_init_std)
     selected = None if keep_intermediates else final_keys(role)
-    seq = TensorDictSequential(stages, selected_out_keys=selected)
+    seq = Chain(stages, selected_out_keys=selected)
     if role == "ppo_actor":
         return probabilistic_actor(seq)
     return seq
