@@ -5,6 +5,16 @@ gcnt params --preset unimal    UNIMAL sizes (PPO actor / critic, F=52, A=2, rand
 
 Counts depend on the robots only through K (the MLP baseline's input size) and the WL vector
 width. Parameters of the robot table are buffers and are not counted.
+
+Against the paper (which does not say what it counts):
+* UNIMAL (table 8) matches actor + critic: MetaMorph* 3,315,075 vs 3,313,183 here for the plain
+  Transformer at the same sizes (-0.06%); GCNT 3,333,583 vs 3,345,185 here, the gap being mostly
+  the WL vector (64 buckets here; the paper's difference suggests about 16).
+* SMPENV (table 7) is about half of one AMORPHEUS actor (202,389 vs 400,404). Its method deltas
+  look like partial counts: SWAT - AMORPHEUS = 8 = Linear(3 -> 2 heads), the relational bias,
+  without the traversal tables; GCNT - AMORPHEUS = 4,224 = Linear(16 + 16 -> 128), the [GCN ‖ WL]
+  projection, without the GCN layers or the distance tables. SMP's 694,410 implies much wider
+  MLPs than the message 32 / hidden 64 used here.
 """
 
 from __future__ import annotations
