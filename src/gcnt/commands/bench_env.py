@@ -1,0 +1,143 @@
+"""``gcnt bench-env``: SMPEnv throughput against the physical limit of raw ``mj_step``.
+
+Measures, in one run and interleaved round by round (so that load from other processes hits both
+alike):
+
+(a) env steps/s of :class:`~gcnt.envs.SMPEnv` — sub-env control steps per second (N × batched
+    steps), with observations, uniform random actions, rewards, terminations and the partial resets
+    of ``step_and_maybe_reset`` (the path a collector takes);
+(b) raw steps/s — a plain single-threaded loop over the same robots' ``MjData``: random controls,
+    ``mj_step`` × frame_skip, and ``mj_resetData`` when the robot's healthy test fails or the time
+    limit is reached (so that both loops simulate comparable states). No observations, no torch.
+
+and prints both and their ratio (env / raw; above 1 means the env's threads hide featurisation and
+TorchRL overhead behind parallel physics).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+import time
+
+import mujoco
+import numpy as np
+import torch
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--robots",
+        nargs="+",
+        default=["CWHH++:train"],
+        help="robot names, .xml paths or Benchmark:split (default: CWHH++:train)",
+    )
+    p.add_argument("--copies", type=int, default=1, help="sub-envs per robot (default 1)")
+    p.add_argument("--steps", type=int, default=300, help="batched steps per round (default 300)")
+    p.add_argument("--rounds", type=int, default=5, help="interleaved rounds (default 5)")
+    p.add_argument(
+        "--threads", type=int, default=None, help="env physics threads (default: all CPUs)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+
+
+def _env_round(env, td, actions: torch.Tensor, steps: int):
+    t = time.perf_counter()
+    for s in range(steps):
+        td.set(("limbs", "action"), actions[s % len(actions)])
+        _, td = env.step_and_maybe_reset(td)
+    return time.perf_counter() - t, td
+
+
+class _RawLoop:
+    """The same robots as plain MjData, stepped one after another on one thread."""
+
+    def __init__(self, env, seed: int):
+        from gcnt.envs.tasks import root_joints, task_rules
+
+        self.items = []
+        for i, r in enumerate(env.robots):
+            model = env.sim(i)[0]
+            data = mujoco.MjData(model)
+            rules, root = task_rules(r), root_joints(r, model)
+            self.items.append((model, data, data.ctrl, data.qpos, rules, root.z, root.pitch))
+        self.frame_skip = env.frame_skip
+        self.limit = env.max_episode_steps
+        self.elapsed = np.zeros(len(self.items), np.int64)
+        rng = np.random.default_rng(seed)
+        self.ctrls = [rng.uniform(-1, 1, (64, m.nu)) for m, *_ in self.items]
+        self.resets = 0
+
+    def round(self, steps: int) -> float:
+        fs, step, reset = self.frame_skip, mujoco.mj_step, mujoco.mj_resetData
+        t = time.perf_counter()
+        for s in range(steps):
+            for j, (m, d, ctrl, qpos, rules, iz, ip) in enumerate(self.items):
+                ctrl[:] = self.ctrls[j][s % 64]
+                step(m, d, fs)
+                self.elapsed[j] += 1
+                z, p = qpos[iz], qpos[ip]
+                if (
+                    not (rules.z_low < z < rules.z_high and abs(p) < rules.pitch_max)
+                    or self.elapsed[j] >= self.limit
+                ):
+                    reset(m, d)
+                    self.elapsed[j] = 0
+                    self.resets += 1
+        return time.perf_counter() - t
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcnt.envs.smpenv import SMPEnv
+    from gcnt.morphology.benchmarks import resolve_robots
+
+    robots = resolve_robots(args.robots) * args.copies
+    env = SMPEnv(robots, seed=args.seed, num_threads=args.threads)
+    n = len(robots)
+    gen = torch.Generator().manual_seed(args.seed)
+    actions = torch.rand((64, n, env.max_limbs, 1), generator=gen) * 2 - 1
+    raw = _RawLoop(env, args.seed)
+
+    td = env.reset()
+    _, td = _env_round(env, td, actions, 20)  # warm up both
+    raw.round(20)
+    env_rates, raw_rates = [], []
+    for _ in range(args.rounds):
+        dt, td = _env_round(env, td, actions, args.steps)
+        env_rates.append(n * args.steps / dt)
+        raw_rates.append(n * args.steps / raw.round(args.steps))
+    env.close()
+    env_med, raw_med = statistics.median(env_rates), statistics.median(raw_rates)
+    result = {
+        "robots": n,
+        "distinct_robots": len(env.distinct_robots),
+        "max_limbs": env.max_limbs,
+        "threads": env.num_threads,
+        "frame_skip": env.frame_skip,
+        "batched_steps_per_round": args.steps,
+        "rounds": args.rounds,
+        "env_steps_per_s": round(env_med, 1),
+        "raw_steps_per_s": round(raw_med, 1),
+        "ratio": round(env_med / raw_med, 3),
+        "env_steps_per_s_rounds": [round(x, 1) for x in env_rates],
+        "raw_steps_per_s_rounds": [round(x, 1) for x in raw_rates],
+        "ratio_rounds": [round(a / b, 3) for a, b in zip(env_rates, raw_rates, strict=True)],
+    }
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(
+            f"SMPEnv: {n} sub-envs ({result['distinct_robots']} distinct robots), K={env.max_limbs}, "
+            f"{env.num_threads} threads, frame_skip {env.frame_skip}; median of {args.rounds} "
+            f"interleaved rounds of {args.steps} batched steps\n"
+            f"  env steps/s (obs, random actions, resets): {env_med:10.1f}\n"
+            f"  raw mj_step loop steps/s (1 thread)      : {raw_med:10.1f}\n"
+            f"  ratio env/raw                            : {env_med / raw_med:10.3f}\n"
+            f"  per round ratios: {result['ratio_rounds']}"
+        )
+    return 0

@@ -1,0 +1,204 @@
+"""The 19-d SMPENV limb observation, vectorised over sub-envs and limbs.
+
+Per limb (bodies in depth-first pre-order, torso first; see ``/work/shared/spec/smpenv.md``):
+
+======= ====================================================================================
+0:3     position of the body frame in world, x made relative to the torso's x
+3:6     linear velocity of the body-frame origin, world axes, clipped to ±10
+6:9     angular velocity, world axes
+9:12    orientation: exponential map (axis × angle, angle in [0, π]) of the world quaternion
+12:16   family limb-type one-hot (``Robot.family_slots``; humanoids get real types)
+16      joint angle normalised to [0, 1] over its range, in degrees (torso: 0)
+17:19   joint range as ((180 + lo°)/360, (180 + hi°)/360) (torso: 0, 0)
+======= ====================================================================================
+
+Velocities come from MuJoCo's ``cvel`` (6-d velocity [angular, linear] of each body about the
+centre of mass of its kinematic subtree, world axes): the velocity of the body-frame origin ``p``
+is ``v = v_com + ω × (p − c)``, which is what ``mj_objectVelocity(mjOBJ_XBODY, flg_local=0)`` and
+mujoco-py's ``get_body_xvelp`` (the original SMP code) return. The caller must have run
+``mj_kinematics``, ``mj_comPos`` and ``mj_comVel`` on the current ``qpos``/``qvel`` (``mj_step``
+leaves ``xpos``/``cvel`` at the state *before* its last integration step).
+
+The work splits in two: :meth:`LimbFeaturizer.gather` copies the needed rows of one ``MjData``
+(a handful of numpy calls per sub-env, no loop over limbs), and :meth:`LimbFeaturizer.compute`
+turns the gathered arrays of many sub-envs into observations with whole-array numpy operations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from gcnt.morphology import Robot
+from gcnt.morphology.limb_types import FAMILY_TYPE_SLOTS
+
+OBS_DIM = 19
+VEL_CLIP = 10.0
+
+
+@dataclass
+class GatherBuffers:
+    """Per-sub-env rows copied out of MjData, for n sub-envs padded to K limbs."""
+
+    xpos: np.ndarray  # [n, K, 3]
+    xquat: np.ndarray  # [n, K, 4]
+    cvel: np.ndarray  # [n, K, 6]
+    com: np.ndarray  # [n, 3]     subtree centre of mass of the torso (the root of cvel)
+    jpos: np.ndarray  # [n, K]     qpos of each limb's hinge (0 on the torso and padding)
+
+    @classmethod
+    def empty(cls, n: int, k: int) -> GatherBuffers:
+        xquat = np.zeros((n, k, 4))
+        xquat[..., 0] = 1.0
+        return cls(
+            xpos=np.zeros((n, k, 3)),
+            xquat=xquat,
+            cvel=np.zeros((n, k, 6)),
+            com=np.zeros((n, 3)),
+            jpos=np.zeros((n, k)),
+        )
+
+
+@dataclass(frozen=True)
+class LimbIndex:
+    """Where a robot's limbs live in its MjData, padded to K."""
+
+    bodies: np.ndarray  # int64 [K] MuJoCo body id per limb (0 = world on padding)
+    joint_qpos: np.ndarray  # int64 [K] qpos address of the limb's hinge (0 on torso/padding)
+    has_joint: np.ndarray  # bool [K]
+    root_body: int  # body whose subtree com is cvel's reference point
+
+
+def limb_index(robot: Robot, model: mujoco.MjModel, k: int) -> LimbIndex:
+    m = robot.num_limbs
+    bodies = np.zeros(k, np.int64)
+    bodies[:m] = robot.mj_body_ids
+    jq = np.zeros(k, np.int64)
+    has = np.zeros(k, bool)
+    for i, joints in enumerate(robot.mj_joint_ids):
+        if joints:  # SMPENV limbs have exactly one hinge; the observation uses the first
+            jq[i] = model.jnt_qposadr[joints[0]]
+            has[i] = True
+    return LimbIndex(bodies, jq, has, int(model.body_rootid[robot.mj_body_ids[0]]))
+
+
+def static_features(robot: Robot, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The constant part of a robot's observation and its joint ranges in degrees.
+
+    Returns ``(template [K, 19] float32, range_deg [K, 2] float64)``; the template holds the type
+    one-hot and the mapped joint range, zeros elsewhere; range_deg is (0, 1) where there is no
+    joint, so that the normalisation never divides by zero.
+    """
+    m = robot.num_limbs
+    template = np.zeros((k, OBS_DIM), np.float32)
+    slots = np.asarray(robot.family_slots)
+    if slots.max(initial=0) >= FAMILY_TYPE_SLOTS:
+        raise ValueError(f"robot {robot.name!r}: family slot {slots.max()} out of range")
+    template[np.arange(m), 12 + slots] = 1.0
+    rng = np.tile([0.0, 1.0], (k, 1))
+    for i, r in enumerate(robot.joint_ranges):
+        if len(r):
+            lo, hi = np.degrees(r[0])
+            rng[i] = lo, hi
+            template[i, 17] = (180.0 + lo) / 360.0
+            template[i, 18] = (180.0 + hi) / 360.0
+    return template, rng
+
+
+def quat_to_expmap(q: np.ndarray) -> np.ndarray:
+    """Exponential map (rotation axis × angle, angle in [0, π]) of unit quaternions [..., 4] (w first)."""
+    w = q[..., 0]
+    v = q[..., 1:]
+    sign = np.where(w < 0, -1.0, 1.0)  # q and -q are the same rotation: take w >= 0
+    w = w * sign
+    v = v * sign[..., None]
+    s = np.sqrt(np.einsum("...i,...i->...", v, v))
+    angle = 2.0 * np.arctan2(s, w)
+    # angle / s, with its limit 2 (as s -> 0, w -> 1) where the rotation is (almost) zero
+    scale = np.divide(angle, s, out=np.full_like(s, 2.0), where=s > 1e-12)
+    return v * scale[..., None]
+
+
+class LimbFeaturizer:
+    """Featurise a fixed list of sub-envs (given by their robots) padded to K limbs."""
+
+    def __init__(self, robots: Sequence[Robot], models: Sequence[mujoco.MjModel], k: int):
+        self.k = k
+        n = len(robots)
+        self.index = [limb_index(r, mdl, k) for r, mdl in zip(robots, models, strict=True)]
+        self.mask = np.zeros((n, k), bool)
+        self.template = np.zeros((n, k, OBS_DIM), np.float32)
+        self.range_lo = np.zeros((n, k))
+        self.range_span = np.ones((n, k))
+        self.has_joint = np.zeros((n, k), bool)
+        for j, r in enumerate(robots):
+            self.mask[j, : r.num_limbs] = True
+            tpl, rng = static_features(r, k)
+            self.template[j] = tpl
+            self.range_lo[j] = rng[:, 0]
+            self.range_span[j] = rng[:, 1] - rng[:, 0]
+            self.has_joint[j] = self.index[j].has_joint
+        if (self.range_span[self.has_joint] <= 0).any():
+            bad = [
+                r.name
+                for j, r in enumerate(robots)
+                if (self.range_span[j][self.has_joint[j]] <= 0).any()
+            ]
+            raise ValueError(
+                f"robots {bad}: a limb joint has an empty range (limited joints needed)"
+            )
+        self.buffers = GatherBuffers.empty(n, k)
+        # How gather() copies each sub-env: a slice when the limbs are consecutive bodies (so the
+        # padded rows are never written and keep their neutral values), else index arrays.
+        self._plan: list[tuple[slice | np.ndarray, int, np.ndarray]] = []
+        for ix, r in zip(self.index, robots, strict=True):
+            m = r.num_limbs
+            ids = ix.bodies[:m]
+            if np.array_equal(ids, np.arange(ids[0], ids[0] + m)):
+                self._plan.append((slice(int(ids[0]), int(ids[0]) + m), m, ix.joint_qpos))
+            else:
+                self._plan.append((ix.bodies, m, ix.joint_qpos))
+        self._maskf = self.mask[..., None].astype(np.float64)
+
+    def gather(self, j: int, data: mujoco.MjData) -> None:
+        """Copy sub-env ``j``'s rows out of its MjData (kinematics must be current)."""
+        b = self.buffers
+        bodies, m, jq = self._plan[j]
+        if isinstance(bodies, slice):  # limbs are consecutive bodies: plain slice copies
+            b.xpos[j, :m] = data.xpos[bodies]
+            b.xquat[j, :m] = data.xquat[bodies]
+            b.cvel[j, :m] = data.cvel[bodies]
+        else:
+            data.xpos.take(bodies, axis=0, out=b.xpos[j])
+            data.xquat.take(bodies, axis=0, out=b.xquat[j])
+            data.cvel.take(bodies, axis=0, out=b.cvel[j])
+        b.com[j] = data.subtree_com[self.index[j].root_body]
+        data.qpos.take(jq, out=b.jpos[j])
+
+    def compute(self, rows: np.ndarray | slice | None = None) -> np.ndarray:
+        """Observations float32 [n, K, 19] of the gathered sub-envs (``rows``: a subset)."""
+        b = self.buffers
+        sel = slice(None) if rows is None else rows
+        xpos, cvel = b.xpos[sel], b.cvel[sel]
+        out = self.template[sel].copy()
+        w, lin = cvel[..., :3], cvel[..., 3:]
+        r = xpos - b.com[sel][:, None, :]
+        # v(p) = v(c) + ω × (p − c)
+        vel = np.empty_like(lin)
+        vel[..., 0] = lin[..., 0] + w[..., 1] * r[..., 2] - w[..., 2] * r[..., 1]
+        vel[..., 1] = lin[..., 1] + w[..., 2] * r[..., 0] - w[..., 0] * r[..., 2]
+        vel[..., 2] = lin[..., 2] + w[..., 0] * r[..., 1] - w[..., 1] * r[..., 0]
+        np.clip(vel, -VEL_CLIP, VEL_CLIP, out=vel)
+        maskf = self._maskf[sel]
+        pos = xpos.copy()
+        pos[..., 0] -= xpos[:, :1, 0]
+        out[..., 0:3] = pos * maskf
+        out[..., 3:6] = vel * maskf
+        out[..., 6:9] = w * maskf
+        out[..., 9:12] = quat_to_expmap(b.xquat[sel]) * maskf
+        ang = (np.degrees(b.jpos[sel]) - self.range_lo[sel]) / self.range_span[sel]
+        out[..., 16] = np.where(self.has_joint[sel], ang, 0.0)
+        return out

@@ -1,0 +1,110 @@
+"""Render an SMPENV rollout to an mp4, headless (MuJoCo's EGL backend), off the hot path.
+
+MuJoCo picks its OpenGL backend when ``mujoco`` is first imported, from ``MUJOCO_GL``; the Makefile
+exports ``MUJOCO_GL=egl``. This module sets ``MUJOCO_GL=egl`` if it is unset, and if ``mujoco`` was
+already imported with the default GLFW backend on a machine without a display (``$DISPLAY`` unset),
+it switches MuJoCo's classic GL context to EGL before creating a renderer.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from tensordict import TensorDictBase  # noqa: E402
+
+from gcnt.morphology import Robot  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+#: Videos are written at the control rate, subsampled to at most this many frames per second.
+MAX_FPS = 60
+
+
+def _headless_gl() -> None:
+    """Use EGL if MuJoCo chose GLFW but there is no display to open a window on."""
+    if os.environ.get("DISPLAY") or os.environ.get("MUJOCO_GL", "").lower() not in ("", "egl"):
+        return
+    from mujoco.rendering.classic import gl_context
+
+    current = getattr(gl_context, "GLContext", None)
+    if current is None or current.__module__.endswith("glfw"):
+        from mujoco.egl import GLContext
+
+        gl_context.GLContext = GLContext
+
+
+def camera_id(model: mujoco.MjModel, camera: str | int) -> int:
+    """The id of ``camera`` (a name or an id); -1 (MuJoCo's free camera) if the model lacks it."""
+    if isinstance(camera, int):
+        return camera if -1 <= camera < model.ncam else -1
+    cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+    if cid < 0:
+        log.info("model has no camera %r; rendering with the free camera", camera)
+    return int(cid)
+
+
+def render_rollout(
+    env_or_robot,
+    policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
+    steps: int = 300,
+    path: str | Path = "rollout.mp4",
+    camera: str | int = "track",
+    width: int = 640,
+    height: int = 480,
+    *,
+    index: int = 0,
+    seed: int | None = 0,
+) -> Path:
+    """Roll out ``policy`` (uniform random actions if None) and write sub-env ``index`` as mp4.
+
+    ``env_or_robot`` is an :class:`~gcnt.envs.SMPEnv` (its sub-envs all step; episodes that end
+    are reset, so the video goes on) or a :class:`~gcnt.morphology.Robot` (a one-robot env is
+    built with ``seed``). The camera follows the robot when the robot file has a tracking camera
+    (``camera="track"``); width and height should be even (H.264).
+    """
+    import imageio.v2 as imageio
+
+    from gcnt.envs.smpenv import SMPEnv
+
+    own = isinstance(env_or_robot, Robot)
+    env = SMPEnv([env_or_robot], seed=seed, num_threads=1) if own else env_or_robot
+    model, data = env.sim(index)
+    rmodel = copy.copy(model)  # a private copy whose offscreen buffer fits the video
+    rmodel.vis.global_.offwidth = max(width, rmodel.vis.global_.offwidth)
+    rmodel.vis.global_.offheight = max(height, rmodel.vis.global_.offheight)
+    cam = camera_id(rmodel, camera)
+    dt = float(env.dt[index])
+    every = max(1, int(np.ceil((1.0 / dt) / MAX_FPS)))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    _headless_gl()
+    renderer = mujoco.Renderer(rmodel, height=height, width=width)
+    try:
+        with imageio.get_writer(path, fps=1.0 / (dt * every)) as writer, torch.no_grad():
+            td = env.reset()
+            for t in range(steps):
+                if policy is None:
+                    td.update(env.action_spec.rand())
+                else:
+                    td = policy(td)
+                _, td = env.step_and_maybe_reset(td)
+                if t % every == 0:
+                    renderer.update_scene(data, camera=cam)
+                    writer.append_data(renderer.render())
+    finally:
+        renderer.close()
+        if own:
+            env.close()
+    log.info("wrote %s (%d steps of %s)", path, steps, env.robots[index].name)
+    return path

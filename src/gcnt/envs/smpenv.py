@@ -1,0 +1,581 @@
+"""SMPEnv: one batched TorchRL env stepping N SMPENV robots (any mix, padded to K limbs).
+
+Output per step (the TensorDict contract of ``/work/shared/spec/design.md``, batch [N])::
+
+    morph_id            [N]        int64    index into the run's robot table
+    limbs/obs           [N,K,19]   float32  see gcnt.envs.featurize
+    limbs/mask          [N,K]      bool
+    limbs/type          [N,K]      int64
+    limbs/action_mask   [N,K,1]    bool
+    graph/adj           [N,K,K]    bool
+    graph/dist          [N,K,K]    uint8
+    graph/wl            [N,W]      float32
+    reward, done, terminated, truncated   [N,1]
+
+and the action ``limbs/action`` [N,K,1] in [-1, 1]. Rewards, terminations and reset noise follow
+``gcnt.envs.tasks``; the time limit is a truncation, not a termination.
+
+Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel``). A step runs on
+``num_threads`` threads (``mj_step`` releases the GIL): each thread pulls sub-envs from a shared
+queue, most expensive first (by a running average of their physics time, so the threads finish
+together), steps them, refreshes their kinematics and copies the rows the observation needs; then it
+featurises the sub-envs it stepped with whole-array numpy operations, while the other threads are
+still in the physics. Nothing loops over limbs in Python.
+
+Blow-ups: a sub-env whose state turns non-finite, or on which MuJoCo raises one of the
+bad-qpos/qvel/qacc warnings (MuJoCo then resets that ``MjData`` by itself), ends its episode with
+``terminated`` and a :class:`PhysicsBlowupWarning` naming the robot; its reward is 0 and its
+observation is made finite. The other sub-envs go on; the next (partial) reset restarts it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import time
+import warnings
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from gcnt.envs.featurize import OBS_DIM, LimbFeaturizer
+from gcnt.envs.robot_table import robot_table
+from gcnt.envs.tasks import (
+    FRAME_SKIP,
+    RootJoints,
+    TaskRules,
+    healthy,
+    reset_noise,
+    root_joints,
+    stack_rules,
+    task_rules,
+)
+from gcnt.morphology import GLOBAL_LIMB_TYPES, Robot
+
+log = logging.getLogger(__name__)
+
+#: Action slots per limb in SMPENV (one hinge per limb).
+NUM_ACTIONS = 1
+
+_BLOWUP_WARNINGS = np.array(
+    [
+        int(mujoco.mjtWarning.mjWARN_BADQPOS),
+        int(mujoco.mjtWarning.mjWARN_BADQVEL),
+        int(mujoco.mjtWarning.mjWARN_BADQACC),
+    ]
+)
+
+
+class PhysicsBlowupWarning(RuntimeWarning):
+    """The physics of a sub-env blew up; its episode was ended (terminated)."""
+
+
+@dataclass
+class _Sim:
+    """One sub-env: its robot, MjData and cached views of the MjData arrays."""
+
+    index: int
+    robot: Robot
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    rules: TaskRules
+    root: RootJoints
+    ctrl_slice: slice  # this sub-env's motors in the flat control vector
+    nq: int
+    nv: int
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+    warn: np.ndarray  # data.warning.number
+
+
+def _robot_key(r: Robot) -> tuple[str, str]:
+    return (r.name, r.xml)
+
+
+def _physics_cost(model: mujoco.MjModel, frame_skip: int) -> float:
+    """Seconds per control step of one MjData, measured briefly (used to balance the shards)."""
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data, 2 * frame_skip)  # warm up
+    best = np.inf
+    for _ in range(3):
+        t = time.perf_counter()
+        mujoco.mj_step(model, data, 2 * frame_skip)
+        best = min(best, (time.perf_counter() - t) / 2)
+    return best
+
+
+class SMPEnv(EnvBase):
+    """N SMPENV robots in lockstep, batch [N]; the same robot may appear several times.
+
+    Args:
+        robots: one :class:`~gcnt.morphology.Robot` per sub-env.
+        max_limbs: K, the padded limb count (default: the largest robot). A larger robot raises
+            :class:`~gcnt.envs.RobotTooLargeError`.
+        max_episode_steps: control steps before an episode is truncated.
+        device: where the output tensors live (the simulation runs on the CPU).
+        seed: seed of the reset noise (see :meth:`set_seed`).
+        num_threads: threads stepping the physics (default: the CPUs this process may use,
+            at most N).
+        robot_ids: each sub-env's index into a run-wide robot table, emitted as ``morph_id``
+            (default: the index of its robot in :attr:`table`).
+        frame_skip: physics steps per control step (SMPENV: 4).
+
+    Attributes:
+        robots, max_limbs (K), table (``robot_table`` of the distinct robots, batch [R]),
+        local_ids ([N] into ``table``), morph_ids ([N], the emitted ``morph_id``: equal to
+        ``local_ids`` unless ``robot_ids`` was given), dt (control period per sub-env, [N]).
+    """
+
+    batch_locked = True
+    # We skip frames ourselves. Without this flag, torchrl 0.14 sees the ``frame_skip`` attribute
+    # and silently wraps the env in a TransformedEnv(FrameSkipTransform) that steps 4x again.
+    _has_frame_skip = True
+
+    def __init__(
+        self,
+        robots: Sequence[Robot],
+        max_limbs: int | None = None,
+        *,
+        max_episode_steps: int = 1000,
+        device: torch.device | str = "cpu",
+        seed: int | None = None,
+        num_threads: int | None = None,
+        robot_ids: Sequence[int] | None = None,
+        frame_skip: int = FRAME_SKIP,
+    ):
+        robots = tuple(robots)
+        if not robots:
+            raise ValueError("SMPEnv needs at least one robot")
+        if max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        n = len(robots)
+        super().__init__(device=device, batch_size=torch.Size([n]))
+        self.robots = robots
+        self.max_episode_steps = int(max_episode_steps)
+        self.frame_skip = int(frame_skip)
+
+        # Distinct robots, their table, compiled models.
+        distinct: dict[tuple[str, str], int] = {}
+        for r in robots:
+            distinct.setdefault(_robot_key(r), len(distinct))
+        self.distinct_robots = tuple(
+            next(r for r in robots if _robot_key(r) == key) for key in distinct
+        )
+        self.local_ids = torch.tensor([distinct[_robot_key(r)] for r in robots], dtype=torch.int64)
+        self.table = robot_table(self.distinct_robots, max_limbs, num_actions=NUM_ACTIONS)
+        self.max_limbs = k = int(self.table["limbs", "mask"].shape[1])
+        if robot_ids is None:
+            self.morph_ids = self.local_ids.clone()
+        else:
+            ids = torch.as_tensor(list(robot_ids), dtype=torch.int64)
+            if ids.shape != (n,):
+                raise ValueError(
+                    f"robot_ids must give one id per robot ({n}), got {tuple(ids.shape)}"
+                )
+            if (ids < 0).any():
+                raise ValueError(f"robot_ids must be >= 0, got {ids.tolist()}")
+            self.morph_ids = ids
+        models = [r.compile() for r in self.distinct_robots]
+        rules = [task_rules(r) for r in self.distinct_robots]
+
+        # Sub-envs.
+        self._sims: list[_Sim] = []
+        ctrl_rows, ctrl_cols, offset = [], [], 0
+        for i, r in enumerate(robots):
+            lid = int(self.local_ids[i])
+            model = models[lid]
+            data = mujoco.MjData(model)
+            src = np.full(model.nu, -1, np.int64)
+            for limb, acts in enumerate(r.actuator_ids):
+                for a in acts:
+                    src[a] = limb
+            if (src < 0).any():
+                raise ValueError(
+                    f"robot {r.name!r}: actuators {np.nonzero(src < 0)[0].tolist()} drive no limb joint"
+                )
+            ctrl_rows.append(np.full(model.nu, i))
+            ctrl_cols.append(src)
+            self._sims.append(
+                _Sim(
+                    index=i,
+                    robot=r,
+                    model=model,
+                    data=data,
+                    rules=rules[lid],
+                    root=root_joints(r, model),
+                    ctrl_slice=slice(offset, offset + model.nu),
+                    nq=model.nq,
+                    nv=model.nv,
+                    qpos=data.qpos,
+                    qvel=data.qvel,
+                    ctrl=data.ctrl,
+                    warn=data.warning.number,
+                )
+            )
+            offset += model.nu
+        self._ctrl_rows = np.concatenate(ctrl_rows)
+        self._ctrl_cols = np.concatenate(ctrl_cols)
+        self._rules = stack_rules([s.rules for s in self._sims])
+        self.dt = np.array(
+            [m.opt.timestep * self.frame_skip for m in (s.model for s in self._sims)]
+        )
+
+        # Per-sub-env state: (qpos, qvel) padded, which entries count for the hopper state test.
+        nq = max(s.model.nq for s in self._sims)
+        nv = max(s.model.nv for s in self._sims)
+        self._state = np.zeros((n, nq + nv))
+        self._state_mask = np.zeros((n, nq + nv), bool)
+        self._nq = nq
+        for s in self._sims:
+            self._state_mask[s.index, : s.model.nq] = True
+            self._state_mask[s.index, nq : nq + s.model.nv] = True
+            self._state_mask[s.index, [s.root.x, s.root.z]] = False
+        self._x_col = np.array([s.root.x for s in self._sims])
+        self._z_col = np.array([s.root.z for s in self._sims])
+        self._pitch_col = np.array([s.root.pitch for s in self._sims])
+        self._rows = np.arange(n)
+        self._x_prev = np.zeros(n)
+        self._elapsed = np.zeros(n, np.int64)
+        self._blown = np.zeros(n, bool)
+        self._last_terminated = np.zeros(n, bool)
+        self._last_truncated = np.zeros(n, bool)
+        self._featurizer = LimbFeaturizer(robots, [s.model for s in self._sims], k)
+        self._obs = np.zeros((n, k, OBS_DIM), np.float32)
+        self._limb_batch = torch.Size([n, k])
+
+        # Static per-sub-env tensors (the graph half of the contract).
+        local = self.local_ids
+        self._static = {
+            ("limbs", "mask"): self.table["limbs", "mask"][local],
+            ("limbs", "type"): self.table["limbs", "type"][local],
+            ("limbs", "action_mask"): self.table["limbs", "action_mask"][local],
+            ("graph", "adj"): self.table["graph", "adj"][local],
+            ("graph", "dist"): self.table["graph", "dist"][local],
+            ("graph", "wl"): self.table["graph", "wl"][local],
+        }
+        self._static = {key: v.to(self.device) for key, v in self._static.items()}
+        self._morph_id_dev = self.morph_ids.to(self.device)
+        self._amask_np = self.table["limbs", "action_mask"][local][..., 0].numpy()
+
+        # Threads: all of them pull sub-envs from one queue, the slowest first.
+        if num_threads is None:
+            try:
+                num_threads = len(os.sched_getaffinity(0))
+            except AttributeError:  # not on Linux
+                num_threads = os.cpu_count() or 1
+        self.num_threads = max(1, min(int(num_threads), n))
+        cost_of = {lid: _physics_cost(m, self.frame_skip) for lid, m in enumerate(models)}
+        self._cost = np.array([cost_of[int(lid)] for lid in local])
+        self._order = np.argsort(-self._cost, kind="stable")
+        self._pool = (
+            ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix="smpenv")
+            if self.num_threads > 1
+            else None
+        )
+
+        self._make_specs()
+        self._rng = np.random.default_rng(seed)
+        if seed is not None:
+            self.set_seed(seed)
+
+    # ------------------------------------------------------------------ specs
+    def _make_specs(self) -> None:
+        n, k = self.batch_size[0], self.max_limbs
+        w = int(self.table["graph", "wl"].shape[-1])
+        dev = self.device
+        bool_spec = lambda *shape: Categorical(2, shape=shape, dtype=torch.bool, device=dev)  # noqa: E731
+        self.observation_spec = Composite(
+            morph_id=Unbounded(shape=(n,), dtype=torch.int64, device=dev),
+            limbs=Composite(
+                obs=Unbounded(shape=(n, k, OBS_DIM), dtype=torch.float32, device=dev),
+                mask=bool_spec(n, k),
+                type=Categorical(
+                    len(GLOBAL_LIMB_TYPES), shape=(n, k), dtype=torch.int64, device=dev
+                ),
+                action_mask=bool_spec(n, k, NUM_ACTIONS),
+                shape=(n, k),
+                device=dev,
+            ),
+            graph=Composite(
+                adj=bool_spec(n, k, k),
+                dist=Bounded(0, 255, shape=(n, k, k), dtype=torch.uint8, device=dev),
+                wl=Unbounded(shape=(n, w), dtype=torch.float32, device=dev),
+                shape=(n,),
+                device=dev,
+            ),
+            shape=(n,),
+            device=dev,
+        )
+        self.action_spec = Composite(
+            limbs=Composite(
+                action=Bounded(
+                    -1.0, 1.0, shape=(n, k, NUM_ACTIONS), dtype=torch.float32, device=dev
+                ),
+                shape=(n, k),
+                device=dev,
+            ),
+            shape=(n,),
+            device=dev,
+        )
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=dev)
+        self.full_done_spec = Composite(
+            done=bool_spec(n, 1),
+            terminated=bool_spec(n, 1),
+            truncated=bool_spec(n, 1),
+            shape=(n,),
+            device=dev,
+        )
+
+    # ------------------------------------------------------------------ seeding
+    def _set_seed(self, seed: int | None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    # ------------------------------------------------------------------ physics helpers
+    def _refresh(self, s: _Sim) -> None:
+        """Kinematics of the current qpos/qvel, then copy what the observation needs.
+
+        (Inlined in :meth:`_work`, the hot loop.)
+        """
+        m, d = s.model, s.data
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_comVel(m, d)
+        self._featurizer.gather(s.index, d)
+        st = self._state[s.index]
+        st[: s.nq] = s.qpos
+        st[self._nq : self._nq + s.nv] = s.qvel
+
+    def _work(self, counter, ctrl: np.ndarray, active: np.ndarray | None) -> None:
+        """One thread's share of a step: pull sub-envs from ``counter`` until none is left, step
+        them, then featurise the ones this thread stepped."""
+        fs, order, n = self.frame_skip, self._order, len(self._order)
+        clock, cost, blown, sims = time.perf_counter, self._cost, self._blown, self._sims
+        qpos_w, qvel_w, qacc_w = _BLOWUP_WARNINGS
+        kinematics, com_pos, com_vel = mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_comVel
+        gather, state, nq = self._featurizer.gather, self._state, self._nq
+        mine = []
+        while (j := next(counter)) < n:
+            i = order[j]
+            if active is not None and not active[i]:
+                continue
+            s = sims[i]
+            s.ctrl[:] = ctrl[s.ctrl_slice]
+            t = clock()
+            mujoco.mj_step(s.model, s.data, fs)
+            cost[i] += 0.2 * (clock() - t - cost[i])
+            w = s.warn
+            if w[qpos_w] or w[qvel_w] or w[qacc_w]:
+                blown[i] = True
+                w[_BLOWUP_WARNINGS] = 0
+            m, d = s.model, s.data
+            kinematics(m, d)
+            com_pos(m, d)
+            com_vel(m, d)
+            gather(i, d)
+            st = state[i]
+            st[: s.nq] = s.qpos
+            st[nq : nq + s.nv] = s.qvel
+            mine.append(i)
+        if mine:
+            rows = np.array(mine)
+            self._obs[rows] = self._featurizer.compute(rows)
+
+    def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
+        """Step and featurise every (active) sub-env on all threads."""
+        counter = itertools.count()
+        if self._pool is None:
+            self._work(counter, ctrl, active)
+        else:
+            futures = [
+                self._pool.submit(self._work, counter, ctrl, active)
+                for _ in range(self.num_threads - 1)
+            ]
+            self._work(counter, ctrl, active)
+            for f in futures:
+                f.result()
+        self._order = np.argsort(-self._cost, kind="stable")
+
+    # ------------------------------------------------------------------ output
+    def _output(
+        self, reward: np.ndarray | None, terminated: np.ndarray, truncated: np.ndarray
+    ) -> TensorDictBase:
+        n, dev, st = self.batch_size[0], self.device, self._static
+        # ``_new_unsafe`` skips the per-value checks of the public constructor (a third of the
+        # cost of building the output): the keys, shapes and devices below are fixed and match the
+        # specs, which check_env_specs verifies in the tests.
+        new = TensorDict._new_unsafe
+        obs = torch.from_numpy(self._obs.copy())
+        term = torch.from_numpy(terminated.reshape(n, 1).copy())
+        trunc = torch.from_numpy(truncated.reshape(n, 1).copy())
+        if dev.type != "cpu":
+            obs, term, trunc = (x.to(dev, non_blocking=True) for x in (obs, term, trunc))
+        limbs = new(
+            {
+                "obs": obs,
+                "mask": st["limbs", "mask"].clone(),
+                "type": st["limbs", "type"].clone(),
+                "action_mask": st["limbs", "action_mask"].clone(),
+            },
+            batch_size=self._limb_batch,
+            device=dev,
+        )
+        graph = new(
+            {
+                "adj": st["graph", "adj"].clone(),
+                "dist": st["graph", "dist"].clone(),
+                "wl": st["graph", "wl"].clone(),
+            },
+            batch_size=self.batch_size,
+            device=dev,
+        )
+        out = {
+            "morph_id": self._morph_id_dev.clone(),
+            "limbs": limbs,
+            "graph": graph,
+            "terminated": term,
+            "truncated": trunc,
+            "done": term | trunc,
+        }
+        if reward is not None:
+            r = torch.from_numpy(reward.astype(np.float32).reshape(n, 1))
+            out["reward"] = r if dev.type == "cpu" else r.to(dev, non_blocking=True)
+        return new(out, batch_size=self.batch_size, device=dev)
+
+    # ------------------------------------------------------------------ reset
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        n = self.batch_size[0]
+        mask = None
+        if tensordict is not None:
+            mask = tensordict.get("_reset", None)
+        if mask is None:
+            which = np.ones(n, bool)
+        else:
+            which = mask.reshape(n).cpu().numpy().astype(bool)
+        for i in np.nonzero(which)[0]:
+            s = self._sims[i]
+            m, d = s.model, s.data
+            mujoco.mj_resetData(m, d)  # qpos = qpos0: every joint at its ref
+            dq, dv = reset_noise(s.rules, self._rng, m.nq, m.nv)
+            d.qpos[:] += dq
+            d.qvel[:] += dv
+            self._x_prev[i] = d.qpos[s.root.x]
+        self._elapsed[which] = 0
+        self._blown[which] = False
+        self._last_terminated[which] = False
+        self._last_truncated[which] = False
+        # Refresh the reset sub-envs (the others keep their state and observation).
+        rows = np.nonzero(which)[0]
+        for i in rows:
+            self._refresh(self._sims[i])
+        self._obs[rows] = self._featurizer.compute(rows)
+        return self._output(None, self._last_terminated.copy(), self._last_truncated.copy())
+
+    # ------------------------------------------------------------------ step
+    def _actions(self, tensordict: TensorDictBase) -> np.ndarray:
+        """The action as float64 [N, K], clipped to [-1, 1] and zeroed on torso and padding."""
+        a = tensordict.get(("limbs", "action")).detach()
+        if a.device.type != "cpu":
+            a = a.cpu()
+        a = a.numpy().reshape(self.batch_size[0], self.max_limbs)
+        if not np.isfinite(a).all():
+            bad = ~np.isfinite(a) & self._amask_np
+            if bad.any():
+                rows = np.nonzero(bad.any(1))[0]
+                names = ", ".join(f"{self.robots[i].name!r} (sub-env {i})" for i in rows)
+                raise ValueError(f"SMPEnv: non-finite (NaN/inf) action for robot {names}")
+        out = np.clip(a, -1.0, 1.0, dtype=np.float64)
+        out[~self._amask_np] = 0.0
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        n = self.batch_size[0]
+        a = self._actions(tensordict)
+        partial = tensordict.get("_step", None)
+        active = None if partial is None else partial.reshape(n).cpu().numpy().astype(bool)
+        ctrl = a[self._ctrl_rows, self._ctrl_cols]
+        self._run_all(ctrl, active)
+
+        st = self._state
+        rows = self._rows
+        x = st[rows, self._x_col]
+        z = st[rows, self._z_col]
+        pitch = st[rows, self._pitch_col]
+        blown = self._blown.copy()
+        if not (np.isfinite(st).all() and np.isfinite(self._obs).all()):
+            blown = blown | ~(np.isfinite(st).all(axis=1) & np.isfinite(self._obs).all(axis=(1, 2)))
+        r = self._rules
+        sq = np.einsum("nk,nk->n", a, a)
+        with np.errstate(invalid="ignore"):
+            ok = healthy(r, z, pitch, st, self._state_mask)
+            reward = (x - self._x_prev) / self.dt + r.healthy_reward - r.ctrl_cost * sq
+        terminated = ~ok | blown
+        self._elapsed += 1
+        truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
+        if blown.any():
+            for i in np.nonzero(blown & (active if active is not None else True))[0]:
+                warnings.warn(
+                    f"SMPEnv: the physics of robot {self.robots[i].name!r} (sub-env {i}) blew up "
+                    f"(non-finite state or a MuJoCo bad-qpos/qvel/qacc warning); its episode is "
+                    f"terminated and will restart at the next reset",
+                    PhysicsBlowupWarning,
+                    stacklevel=3,
+                )
+            reward[blown] = 0.0
+            self._obs[blown] = np.nan_to_num(self._obs[blown], nan=0.0, posinf=0.0, neginf=0.0)
+            self._blown[:] = False
+        if active is not None:  # sub-envs not stepped keep their state and flags
+            keep = ~active
+            reward[keep] = 0.0
+            terminated[keep] = self._last_terminated[keep]
+            truncated[keep] = self._last_truncated[keep]
+            self._elapsed[keep] -= 1
+            x = np.where(keep, self._x_prev, x)
+        self._x_prev = x
+        self._last_terminated = terminated
+        self._last_truncated = truncated
+        return self._output(reward, terminated, truncated)
+
+    # ------------------------------------------------------------------ misc
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        super().close(raise_if_closed=raise_if_closed)
+
+    def set_state(
+        self, i: int, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None
+    ) -> None:
+        """Put sub-env ``i`` into a given state (tests, debugging, replaying a start state).
+
+        The next step's reward measures progress from this state; the episode clock is unchanged.
+        """
+        s = self._sims[i]
+        if qpos is not None:
+            s.qpos[:] = qpos
+        if qvel is not None:
+            s.qvel[:] = qvel
+        self._x_prev[i] = s.qpos[s.root.x]
+        self._refresh(s)
+        self._obs[[i]] = self._featurizer.compute(np.array([i]))
+
+    def observe(self) -> TensorDictBase:
+        """The current observation of all sub-envs (no step, no reset; reward left out)."""
+        return self._output(None, self._last_terminated.copy(), self._last_truncated.copy())
+
+    def sim(self, i: int) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The MjModel and MjData of sub-env ``i`` (for tests, rendering and debugging)."""
+        s = self._sims[i]
+        return s.model, s.data
+
+    def __repr__(self) -> str:
+        names = sorted({r.name for r in self.robots})
+        return f"SMPEnv(n={self.batch_size[0]}, K={self.max_limbs}, robots={names})"

@@ -1,0 +1,201 @@
+"""Per-family SMPENV task rules: reward weights, the healthy test and the reset noise.
+
+The rules (``/work/shared/spec/smpenv.md``, "Reward, termination, reset"):
+
+=========== ============================== ================================================ ==========================================
+family      reward per control step        healthy (the episode terminates when it fails)  reset noise
+=========== ============================== ================================================ ==========================================
+walker      Δx/dt + 1 − 1e-3·Σa²           0.8 < z < 2.0 and −1 < pitch < 1; both z bounds  qpos, qvel + U(±0.005)
+                                           lowered by 0.136 for walker_4, 0.26 for 2 and 3
+hopper      Δx/dt + 1 − 1e-3·Σa²           s finite, |s[2:]| < 100, |pitch| < 1, z > 0.45   qpos, qvel + U(±0.005)
+                                           (hopper_3), 0.6 (hopper_4), 0.95 (hopper_5)
+humanoid    Δx/dt + 1 − 1e-3·Σa²           0.4 < z < 2.1 and −1 < pitch < 1                 qpos, qvel + U(±0.005)
+cheetah     Δx/dt − 0.1·Σa²                never terminates                                 qpos + U(±0.1), qvel + N(0, 0.1²)
+=========== ============================== ================================================ ==========================================
+
+x, z and pitch are the qpos of the torso's root joints (slide x, slide z, hinge y), s is
+(qpos, qvel). The size-dependent bounds come from the body count in the robot's name
+(``walker_4_main`` → 4, ``hopper_5`` → 5); a name without a number falls back to the robot's limb
+count. Everything here is per robot; :func:`stack_rules` turns a list of rules into arrays so that
+the env evaluates the healthy test of all sub-envs at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from gcnt.morphology import Robot
+
+log = logging.getLogger(__name__)
+
+#: The control period is ``frame_skip`` physics steps for every SMPENV family.
+FRAME_SKIP = 4
+
+_WALKER_Z_SHIFT = {2: 0.26, 3: 0.26, 4: 0.136}
+_HOPPER_MIN_Z = {3: 0.45, 4: 0.6, 5: 0.95}
+_HOPPER_DEFAULT_MIN_Z = 0.7  # gym's hopper, for a hand-made hopper of another size
+
+
+@dataclass(frozen=True)
+class TaskRules:
+    """Reward, termination and reset-noise rules of one robot."""
+
+    family: str
+    healthy_reward: float  # per control step while alive
+    ctrl_cost: float  # weight of Σa² (a: the clipped actions)
+    z_low: float = -math.inf  # healthy iff z_low < z < z_high ...
+    z_high: float = math.inf
+    pitch_max: float = math.inf  # ... and |pitch| < pitch_max
+    state_check: bool = False  # ... and (hopper) s finite and |s[2:]| < state_max
+    state_max: float = 100.0
+    qpos_noise: float = 0.005  # U(±qpos_noise) on every qpos
+    qvel_noise: float = 0.005  # U(±qvel_noise), or N(0, qvel_noise²) if qvel_noise_normal
+    qvel_noise_normal: bool = False
+
+    @property
+    def can_terminate(self) -> bool:
+        return (
+            self.state_check
+            or self.z_low > -math.inf
+            or self.z_high < math.inf
+            or self.pitch_max < math.inf
+        )
+
+
+def body_count(robot: Robot) -> int:
+    """The body count in the robot's name (``walker_4_main`` → 4), else its limb count."""
+    m = re.match(rf"{re.escape(robot.family)}(?:_2d)?_(\d+)", robot.name)
+    return int(m.group(1)) if m else robot.num_limbs
+
+
+def task_rules(robot: Robot) -> TaskRules:
+    """The SMPENV rules of ``robot``, from its family and name."""
+    fam = robot.family
+    if fam == "walker":
+        shift = _WALKER_Z_SHIFT.get(body_count(robot), 0.0)
+        return TaskRules(fam, 1.0, 1e-3, z_low=0.8 - shift, z_high=2.0 - shift, pitch_max=1.0)
+    if fam == "hopper":
+        n = body_count(robot)
+        if n not in _HOPPER_MIN_Z:
+            log.warning(
+                "robot %r: no SMPENV hopper has %d bodies; using gym's healthy height z > %.2f",
+                robot.name,
+                n,
+                _HOPPER_DEFAULT_MIN_Z,
+            )
+        z_low = _HOPPER_MIN_Z.get(n, _HOPPER_DEFAULT_MIN_Z)
+        return TaskRules(fam, 1.0, 1e-3, z_low=z_low, pitch_max=1.0, state_check=True)
+    if fam == "humanoid":
+        return TaskRules(fam, 1.0, 1e-3, z_low=0.4, z_high=2.1, pitch_max=1.0)
+    if fam == "cheetah":
+        return TaskRules(fam, 0.0, 0.1, qpos_noise=0.1, qvel_noise=0.1, qvel_noise_normal=True)
+    raise ValueError(f"robot {robot.name!r}: family {fam!r} has no SMPENV task rules")
+
+
+@dataclass(frozen=True)
+class RootJoints:
+    """qpos/qvel addresses of the torso's planar root joints (slide x, slide z, hinge y)."""
+
+    x: int
+    z: int
+    pitch: int
+    x_dof: int
+    z_dof: int
+
+
+def root_joints(robot: Robot, model: mujoco.MjModel) -> RootJoints:
+    """Find the torso's slide-x, slide-z and hinge-y joints; a clear error if one is missing."""
+    body = int(robot.mj_body_ids[0])
+    start, num = int(model.body_jntadr[body]), int(model.body_jntnum[body])
+    found: dict[str, int] = {}
+    for j in range(start, start + num):
+        axis = np.round(np.abs(model.jnt_axis[j]), 6)
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE and np.array_equal(axis, [1, 0, 0]):
+            found.setdefault("x", j)
+        elif model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE and np.array_equal(axis, [0, 0, 1]):
+            found.setdefault("z", j)
+        elif model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and np.array_equal(axis, [0, 1, 0]):
+            found.setdefault("pitch", j)
+    missing = [k for k in ("x", "z", "pitch") if k not in found]
+    if missing:
+        raise ValueError(
+            f"robot {robot.name!r} ({robot.source}): torso {robot.body_names[0]!r} lacks the planar "
+            f"root joint(s) {', '.join(missing)} (expected slide x, slide z, hinge y)"
+        )
+    return RootJoints(
+        x=int(model.jnt_qposadr[found["x"]]),
+        z=int(model.jnt_qposadr[found["z"]]),
+        pitch=int(model.jnt_qposadr[found["pitch"]]),
+        x_dof=int(model.jnt_dofadr[found["x"]]),
+        z_dof=int(model.jnt_dofadr[found["z"]]),
+    )
+
+
+@dataclass(frozen=True)
+class StackedRules:
+    """Rules of N sub-envs as arrays, for the vectorised reward and healthy test."""
+
+    healthy_reward: np.ndarray  # [N] float64
+    ctrl_cost: np.ndarray  # [N]
+    z_low: np.ndarray  # [N]
+    z_high: np.ndarray  # [N]
+    pitch_max: np.ndarray  # [N]
+    state_check: np.ndarray  # [N] bool
+    state_max: np.ndarray  # [N]
+    any_state_check: bool
+
+
+def stack_rules(rules: Sequence[TaskRules]) -> StackedRules:
+    def arr(name: str, dtype=np.float64) -> np.ndarray:
+        return np.array([getattr(r, name) for r in rules], dtype=dtype)
+
+    check = arr("state_check", bool)
+    return StackedRules(
+        healthy_reward=arr("healthy_reward"),
+        ctrl_cost=arr("ctrl_cost"),
+        z_low=arr("z_low"),
+        z_high=arr("z_high"),
+        pitch_max=arr("pitch_max"),
+        state_check=check,
+        state_max=arr("state_max"),
+        any_state_check=bool(check.any()),
+    )
+
+
+def healthy(
+    rules: StackedRules,
+    z: np.ndarray,
+    pitch: np.ndarray,
+    state: np.ndarray | None = None,
+    state_mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """The healthy test of N sub-envs (bool [N]).
+
+    ``state`` [N, S] holds (qpos, qvel) padded with zeros; ``state_mask`` [N, S] marks the entries
+    that count for the hopper's ``|s[2:]| < 100`` test (everything but root x and z).
+    """
+    ok = (z > rules.z_low) & (z < rules.z_high) & (np.abs(pitch) < rules.pitch_max)
+    if rules.any_state_check and state is not None:
+        finite = np.isfinite(state).all(axis=1)
+        small = ((np.abs(state) < rules.state_max[:, None]) | ~state_mask).all(axis=1)
+        ok &= ~rules.state_check | (finite & small)
+    return ok
+
+
+def reset_noise(
+    rules: TaskRules, rng: np.random.Generator, nq: int, nv: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Draw the reset noise of one sub-env: (qpos noise [nq], qvel noise [nv])."""
+    dq = rng.uniform(-rules.qpos_noise, rules.qpos_noise, nq)
+    if rules.qvel_noise_normal:
+        dv = rng.normal(0.0, rules.qvel_noise, nv)
+    else:
+        dv = rng.uniform(-rules.qvel_noise, rules.qvel_noise, nv)
+    return dq, dv
