@@ -15,6 +15,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("gcnt.commands.eval", "evaluate a run's deterministic policy per robot"),
     "params": ("gcnt.commands.params", "parameter counts of every method (paper tables 7-8)"),
     "bench-nn": ("gcnt.commands.bench_nn", "forward+backward time of GCNT vs AMORPHEUS (TD3)"),
+    "bench-train": ("gcnt.commands.bench_train", "training env steps/s against the bare TD3 update"),
     "bench-env": ("gcnt.commands.bench_env", "measure SMPEnv steps/s against a raw mj_step loop"),
 }
 
@@ -32,10 +33,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    # Configure gcnt's own logger: libraries imported above (absl via dm_control) may already
+    # have put a handler on the root logger, which would make logging.basicConfig a no-op.
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    gcnt_log = logging.getLogger("gcnt")
+    gcnt_log.handlers[:] = [handler]
+    gcnt_log.setLevel(logging.DEBUG if args.verbose else logging.INFO)
+    gcnt_log.propagate = False
     return int(importlib.import_module(args._module).run(args) or 0)
 
 

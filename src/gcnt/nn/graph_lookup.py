@@ -19,8 +19,16 @@ from gcnt.envs.robot_table import STATIC_KEYS, RobotTooLargeError
 from gcnt.nn import keys as K
 
 
+_BUFFER_PREFIX = "table_"
+
+
 def _buffer_name(key: tuple[str, str]) -> str:
-    return "table_" + "__".join(key)
+    return _BUFFER_PREFIX + "__".join(key)
+
+
+def is_table_key(state_dict_key: str) -> bool:
+    """True for a state-dict entry that holds robot-table data (static, not learnt)."""
+    return state_dict_key.rsplit(".", 1)[-1].startswith(_BUFFER_PREFIX)
 
 
 class GraphLookup(TensorDictModuleBase):

@@ -31,6 +31,7 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import SoftUpdate
 from tqdm import tqdm
 
+from gcnt.nn.graph_lookup import is_table_key
 from gcnt.recipes import Recipe
 from gcnt.rl import replay as rb
 from gcnt.rl.evaluate import evaluate, write_eval
@@ -48,10 +49,12 @@ class TD3Learner:
         o = recipe.optim
         self.recipe = recipe
         self.actor = make_net(recipe, table, "td3_actor")
-        self.critic = make_net(recipe, table, "td3_critic")
+        # two independently initialised critics (given one, TD3Loss re-draws the twin's weights
+        # uniformly between each tensor's min and max, losing the layers' own init schemes)
+        self.critics = [make_net(recipe, table, "td3_critic") for _ in range(2)]
         self.loss = make_td3_loss(
             self.actor,
-            self.critic,
+            self.critics,
             gamma=o.gamma,
             policy_noise=o.policy_noise,
             noise_clip=o.noise_clip,
@@ -88,15 +91,23 @@ class TD3Learner:
         return out
 
     def state_dict(self) -> dict:
+        # The robot table is static data, not learnt state: the loss holds (expanded) copies of
+        # GraphLookup's buffers, which are left out so a checkpoint loads for any robot set.
+        loss_state = {k: v for k, v in self.loss.state_dict().items() if not is_table_key(k)}
         return {
-            "loss": self.loss.state_dict(),
+            "loss": loss_state,
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "updates": self.updates,
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.loss.load_state_dict(state["loss"])
+        missing, unexpected = self.loss.load_state_dict(state["loss"], strict=False)
+        missing = [k for k in missing if not is_table_key(k)]
+        if missing or unexpected:
+            raise KeyError(
+                f"checkpoint does not fit the networks: missing {missing}, unexpected {unexpected}"
+            )
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.updates = state["updates"]
@@ -150,6 +161,7 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
         init_random_frames=max(0, c.init_random_frames - env_steps),
         device=recipe.device,
         storing_device="cpu",
+        auto_register_policy_transforms=False,  # the policy needs no InitTracker
     )
     logger = make_logger(recipe, run)
 

@@ -46,7 +46,7 @@ class PerRobotTD0(TD0Estimator):
 
 def make_td3_loss(
     actor: torch.nn.Module,
-    critic: torch.nn.Module,
+    critics: torch.nn.Module | list[torch.nn.Module],
     *,
     gamma: float,
     policy_noise: float,
@@ -54,7 +54,7 @@ def make_td3_loss(
 ) -> TD3Loss:
     loss = TD3Loss(
         actor_network=actor,
-        qvalue_network=critic,
+        qvalue_network=critics,
         bounds=(-1.0, 1.0),  # a nested action spec is rejected by TD3Loss (torchrl-notes)
         num_qvalue_nets=2,
         policy_noise=policy_noise,

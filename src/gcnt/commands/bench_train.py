@@ -1,0 +1,93 @@
+"""``gcnt bench-train``: what the training pipeline costs on top of the learning itself.
+
+In one run: (1) the bare TD3 update rate (same networks, same mini-batch, no env, no buffer) and
+(2) end-to-end environment steps per second of ``gcnt train`` with the same recipe, measured after
+the random-exploration phase. With one update per environment step, their ratio is the fraction of
+time spent learning; 1.0 means the env, collector and buffers cost nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+
+import torch
+
+from gcnt.recipes import load_recipe
+from gcnt.rl import replay as rb
+from gcnt.rl.factories import make_env, train_robots
+from gcnt.rl.run_dir import RunDir
+from gcnt.rl.td3 import TD3Learner, train
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recipe", nargs="?", default="recipes/smpenv/walker.yaml")
+    p.add_argument("overrides", nargs="*", help="dotted recipe overrides")
+    p.add_argument("--updates", type=int, default=30, help="bare updates to time")
+    p.add_argument("--steps", type=int, default=400, help="env steps to time end to end")
+    p.add_argument("--warmup", type=int, default=200, help="random-action steps before timing")
+    p.add_argument("--json", action="store_true", help="print JSON only")
+
+
+def bare_update_rate(recipe, n_updates: int) -> float:
+    robots = train_robots(recipe)
+    env = make_env(recipe, robots)
+    steps = -(-recipe.replay_buffer.batch_size // env.batch_size[0]) + 1
+    data = env.rollout(steps, break_when_any_done=False)
+    flat = data.select(*rb.STORED_KEYS).reshape(-1)
+    batch = flat[torch.randint(len(flat), (recipe.replay_buffer.batch_size,))].clone()
+    learner = TD3Learner(recipe, env.base_env.table)
+    for _ in range(3):
+        learner.update(batch)
+    t0 = time.perf_counter()
+    for _ in range(n_updates):
+        learner.update(batch)
+    return n_updates / (time.perf_counter() - t0)
+
+
+def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        recipe.run_dir = tmp
+        recipe.collector.init_random_frames = warmup
+        recipe.collector.total_frames = warmup + steps
+        recipe.collector.steps_per_batch = 1
+        recipe.logger.backend, recipe.logger.progress = "none", False
+        recipe.logger.log_interval = max(1, warmup)
+        recipe.checkpoint_interval = 10**12
+        recipe.eval.episodes = 0
+        run = RunDir(tmp)
+        run.create(recipe)
+        train(recipe, run)
+        rows = [r for r in run.read_metrics() if r["env_steps"] > warmup]
+    span = rows[-1]["env_steps"] - warmup
+    secs = sum(
+        (r["env_steps"] - p["env_steps"]) / r["env_steps_per_s"]
+        for p, r in zip([{"env_steps": warmup}, *rows], rows, strict=False)
+    )
+    return {"env_steps_per_s": span / secs, "updates": rows[-1]["updates"], "env_steps": span}
+
+
+def run(args: argparse.Namespace) -> int:
+    recipe = load_recipe(args.recipe, args.overrides)
+    bare = bare_update_rate(recipe, args.updates)
+    e2e = end_to_end_rate(recipe, args.warmup, args.steps)
+    ratio = e2e["env_steps_per_s"] / (bare * recipe.optim.updates_per_step)
+    out = {
+        "recipe": args.recipe,
+        "network": recipe.network.name,
+        "batch_size": recipe.replay_buffer.batch_size,
+        "updates_per_step": recipe.optim.updates_per_step,
+        "threads": torch.get_num_threads(),
+        "bare_updates_per_s": bare,
+        "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
+        "ratio": ratio,
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"bare TD3 update:   {bare:8.2f} updates/s ({recipe.network.name}, batch {out['batch_size']})")
+        print(f"end to end:        {e2e['env_steps_per_s']:8.2f} env steps/s")
+        print(f"ratio (e2e / bare × updates per step): {ratio:.3f}")
+    return 0
