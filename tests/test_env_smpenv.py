@@ -195,6 +195,8 @@ def test_table_morph_ids_and_robot_ids():
     assert env2.reset()["morph_id"].tolist() == [7, 3, 7, 7]
     with pytest.raises(ValueError, match="one id per robot"):
         SMPEnv([w, c], robot_ids=[1], num_threads=1)
+    with pytest.raises(ValueError, match="same id"):
+        SMPEnv([w, c], robot_ids=[1, 1], num_threads=1)
 
 
 def test_robot_too_large():

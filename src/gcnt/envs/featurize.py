@@ -37,6 +37,9 @@ from gcnt.morphology.limb_types import FAMILY_TYPE_SLOTS
 
 OBS_DIM = 19
 VEL_CLIP = 10.0
+# a × b = a[_ROLL1] * b[_ROLL2] - a[_ROLL2] * b[_ROLL1]
+_ROLL1 = np.array([1, 2, 0])
+_ROLL2 = np.array([2, 0, 1])
 
 
 @dataclass
@@ -161,7 +164,32 @@ class LimbFeaturizer:
                 self._plan.append((slice(int(ids[0]), int(ids[0]) + m), m, ix.joint_qpos))
             else:
                 self._plan.append((ix.bodies, m, ix.joint_qpos))
-        self._maskf = self.mask[..., None].astype(np.float64)
+        self._mask2f = self.mask.astype(np.float64)
+        self._has_joint_f = self.has_joint.astype(np.float64)
+
+    def bind(self, j: int, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]] | None:
+        """Copy pairs ``(buffer view, MjData view)`` that do :meth:`gather` for sub-env ``j``.
+
+        ``dst[...] = src`` over these pairs is the fastest gather (MjData arrays never move, so
+        the views stay valid for the life of ``data``). None if the limbs are not consecutive
+        bodies with consecutive hinge qpos; use :meth:`gather` then.
+        """
+        bodies, m, jq = self._plan[j]
+        if not isinstance(bodies, slice):
+            return None
+        b = self.buffers
+        pairs = [
+            (b.xpos[j, :m], data.xpos[bodies]),
+            (b.xquat[j, :m], data.xquat[bodies]),
+            (b.cvel[j, :m], data.cvel[bodies]),
+            (b.com[j : j + 1], data.subtree_com[self.index[j].root_body][None]),
+        ]
+        if m > 1:
+            q = jq[1:m]
+            if not np.array_equal(q, np.arange(q[0], q[0] + m - 1)):
+                return None
+            pairs.append((b.jpos[j, 1:m], data.qpos[int(q[0]) : int(q[0]) + m - 1]))
+        return pairs
 
     def gather(self, j: int, data: mujoco.MjData) -> None:
         """Copy sub-env ``j``'s rows out of its MjData (kinematics must be current)."""
@@ -178,27 +206,65 @@ class LimbFeaturizer:
         b.com[j] = data.subtree_com[self.index[j].root_body]
         data.qpos.take(jq, out=b.jpos[j])
 
-    def compute(self, rows: np.ndarray | slice | None = None) -> np.ndarray:
-        """Observations float32 [n, K, 19] of the gathered sub-envs (``rows``: a subset)."""
+    def compute(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Observations float32 [n, K, 19] of the gathered sub-envs (``rows``: a subset).
+
+        Written for few numpy calls (their count, not the array size, is the cost here). Padded
+        limb rows hold the world body's values (position 0, identity rotation, velocity 0), which
+        featurise to zeros, so only the torso-relative x needs the mask.
+        """
         b = self.buffers
-        sel = slice(None) if rows is None else rows
-        xpos, cvel = b.xpos[sel], b.cvel[sel]
-        out = self.template[sel].copy()
-        w, lin = cvel[..., :3], cvel[..., 3:]
-        r = xpos - b.com[sel][:, None, :]
-        # v(p) = v(c) + ω × (p − c)
-        vel = np.empty_like(lin)
-        vel[..., 0] = lin[..., 0] + w[..., 1] * r[..., 2] - w[..., 2] * r[..., 1]
-        vel[..., 1] = lin[..., 1] + w[..., 2] * r[..., 0] - w[..., 0] * r[..., 2]
-        vel[..., 2] = lin[..., 2] + w[..., 0] * r[..., 1] - w[..., 1] * r[..., 0]
-        np.clip(vel, -VEL_CLIP, VEL_CLIP, out=vel)
-        maskf = self._maskf[sel]
-        pos = xpos.copy()
-        pos[..., 0] -= xpos[:, :1, 0]
-        out[..., 0:3] = pos * maskf
-        out[..., 3:6] = vel * maskf
-        out[..., 6:9] = w * maskf
-        out[..., 9:12] = quat_to_expmap(b.xquat[sel]) * maskf
-        ang = (np.degrees(b.jpos[sel]) - self.range_lo[sel]) / self.range_span[sel]
-        out[..., 16] = np.where(self.has_joint[sel], ang, 0.0)
+        if rows is None:
+            xpos, xquat, cvel, com, jpos = b.xpos, b.xquat, b.cvel, b.com, b.jpos
+            tpl, maskf, lo, span, hasj = (
+                self.template,
+                self._mask2f,
+                self.range_lo,
+                self.range_span,
+                self._has_joint_f,
+            )
+        else:
+            xpos, xquat, cvel, com, jpos = (
+                b.xpos[rows],
+                b.xquat[rows],
+                b.cvel[rows],
+                b.com[rows],
+                b.jpos[rows],
+            )
+            tpl, maskf, lo, span, hasj = (
+                self.template[rows], self._mask2f[rows], self.range_lo[rows],
+                self.range_span[rows], self._has_joint_f[rows],
+            )  # fmt: skip
+        dyn = np.empty((*xpos.shape[:2], 12))
+        w = cvel[..., :3]
+        # 0:3 body-frame position, x relative to the torso's x
+        dyn[..., 0:3] = xpos
+        x = dyn[..., 0]
+        x -= xpos[:, :1, 0]
+        x *= maskf
+        # 3:6 velocity of the body-frame origin p: v(p) = v(c) + ω × (p − c), clipped
+        r = xpos - com[:, None, :]
+        v = dyn[..., 3:6]
+        np.multiply(w[..., _ROLL1], r[..., _ROLL2], out=v)
+        v -= w[..., _ROLL2] * r[..., _ROLL1]
+        v += cvel[..., 3:]
+        np.clip(v, -VEL_CLIP, VEL_CLIP, out=v)
+        # 6:9 angular velocity
+        dyn[..., 6:9] = w
+        # 9:12 exponential map of the world quaternion (w >= 0 representative, angle in [0, π])
+        qw, qv = xquat[..., 0], xquat[..., 1:]
+        sin_half = np.sqrt(np.einsum("...i,...i->...", qv, qv))
+        angle = np.arctan2(sin_half, np.abs(qw))
+        angle *= 2.0
+        scale = np.divide(angle, sin_half, out=np.full_like(angle, 2.0), where=sin_half > 1e-12)
+        np.negative(scale, out=scale, where=qw < 0)
+        np.multiply(qv, scale[..., None], out=dyn[..., 9:12])
+        out = tpl.copy()
+        out[..., :12] = dyn
+        # 16 joint angle normalised over its range, in degrees
+        ang = np.degrees(jpos)
+        ang -= lo
+        ang /= span
+        ang *= hasj
+        out[..., 16] = ang
         return out

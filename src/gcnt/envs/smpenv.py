@@ -18,9 +18,9 @@ and the action ``limbs/action`` [N,K,1] in [-1, 1]. Rewards, terminations and re
 Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel``). A step runs on
 ``num_threads`` threads (``mj_step`` releases the GIL): each thread pulls sub-envs from a shared
 queue, most expensive first (by a running average of their physics time, so the threads finish
-together), steps them, refreshes their kinematics and copies the rows the observation needs; then it
-featurises the sub-envs it stepped with whole-array numpy operations, while the other threads are
-still in the physics. Nothing loops over limbs in Python.
+together), steps them, refreshes their kinematics and copies the rows the observation needs through
+pre-bound array views (while one thread does this Python work, the others are in the physics); then
+one vectorised featurisation covers all sub-envs. Nothing loops over limbs in Python.
 
 Blow-ups: a sub-env whose state turns non-finite, or on which MuJoCo raises one of the
 bad-qpos/qvel/qacc warnings (MuJoCo then resets that ``MjData`` by itself), ends its episode with
@@ -95,22 +95,20 @@ class _Sim:
     qvel: np.ndarray
     ctrl: np.ndarray
     warn: np.ndarray  # data.warning.number
+    # (destination, source) views that copy what the observation and the healthy test need out
+    # of the MjData; None: use LimbFeaturizer.gather (limbs that are not consecutive bodies)
+    copies: list[tuple[np.ndarray, np.ndarray]] | None = None
 
 
 def _robot_key(r: Robot) -> tuple[str, str]:
     return (r.name, r.xml)
 
 
-def _physics_cost(model: mujoco.MjModel, frame_skip: int) -> float:
-    """Seconds per control step of one MjData, measured briefly (used to balance the shards)."""
-    data = mujoco.MjData(model)
-    mujoco.mj_step(model, data, 2 * frame_skip)  # warm up
-    best = np.inf
-    for _ in range(3):
-        t = time.perf_counter()
-        mujoco.mj_step(model, data, 2 * frame_skip)
-        best = min(best, (time.perf_counter() - t) / 2)
-    return best
+def _cost_guess(model: mujoco.MjModel, frame_skip: int) -> float:
+    """A first guess of a sub-env's physics time per control step (seconds), to order the work
+    queue until measured times replace it."""
+    evals = 4 if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else 1
+    return frame_skip * evals * model.nv * 1e-6
 
 
 class SMPEnv(EnvBase):
@@ -183,6 +181,12 @@ class SMPEnv(EnvBase):
                 )
             if (ids < 0).any():
                 raise ValueError(f"robot_ids must be >= 0, got {ids.tolist()}")
+            owner: dict[int, str] = {}
+            for r, i in zip(robots, ids.tolist(), strict=True):
+                if owner.setdefault(i, r.name) != r.name:
+                    raise ValueError(
+                        f"robot_ids gives robots {owner[i]!r} and {r.name!r} the same id {i}"
+                    )
             self.morph_ids = ids
         models = [r.compile() for r in self.distinct_robots]
         rules = [task_rules(r) for r in self.distinct_robots]
@@ -243,12 +247,21 @@ class SMPEnv(EnvBase):
         self._z_col = np.array([s.root.z for s in self._sims])
         self._pitch_col = np.array([s.root.pitch for s in self._sims])
         self._rows = np.arange(n)
+        same = all((s.root.x, s.root.z, s.root.pitch) == (0, 1, 2) for s in self._sims)
+        self._root_cols = (0, 1, 2) if same else None
         self._x_prev = np.zeros(n)
         self._elapsed = np.zeros(n, np.int64)
         self._blown = np.zeros(n, bool)
         self._last_terminated = np.zeros(n, bool)
         self._last_truncated = np.zeros(n, bool)
         self._featurizer = LimbFeaturizer(robots, [s.model for s in self._sims], k)
+        for s in self._sims:
+            pairs = self._featurizer.bind(s.index, s.data)
+            if pairs is not None:
+                pairs.append((self._state[s.index, : s.nq], s.qpos))
+                if s.rules.state_check:  # only the hopper's healthy test reads qvel
+                    pairs.append((self._state[s.index, nq : nq + s.nv], s.qvel))
+            s.copies = pairs
         self._obs = np.zeros((n, k, OBS_DIM), np.float32)
         self._limb_batch = torch.Size([n, k])
 
@@ -265,6 +278,7 @@ class SMPEnv(EnvBase):
         self._static = {key: v.to(self.device) for key, v in self._static.items()}
         self._morph_id_dev = self.morph_ids.to(self.device)
         self._amask_np = self.table["limbs", "action_mask"][local][..., 0].numpy()
+        self._no_motor = ~self._amask_np
 
         # Threads: all of them pull sub-envs from one queue, the slowest first.
         if num_threads is None:
@@ -273,9 +287,9 @@ class SMPEnv(EnvBase):
             except AttributeError:  # not on Linux
                 num_threads = os.cpu_count() or 1
         self.num_threads = max(1, min(int(num_threads), n))
-        cost_of = {lid: _physics_cost(m, self.frame_skip) for lid, m in enumerate(models)}
-        self._cost = np.array([cost_of[int(lid)] for lid in local])
-        self._order = np.argsort(-self._cost, kind="stable")
+        # Python lists: the hot loop reads and writes single items, which numpy makes slow.
+        self._cost = [_cost_guess(s.model, self.frame_skip) for s in self._sims]
+        self._order = sorted(range(n), key=lambda i: -self._cost[i])
         self._pool = (
             ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix="smpenv")
             if self.num_threads > 1
@@ -356,38 +370,37 @@ class SMPEnv(EnvBase):
 
     def _work(self, counter, ctrl: np.ndarray, active: np.ndarray | None) -> None:
         """One thread's share of a step: pull sub-envs from ``counter`` until none is left, step
-        them, then featurise the ones this thread stepped."""
+        them and copy out what the observation needs."""
         fs, order, n = self.frame_skip, self._order, len(self._order)
         clock, cost, blown, sims = time.perf_counter, self._cost, self._blown, self._sims
-        qpos_w, qvel_w, qacc_w = _BLOWUP_WARNINGS
-        kinematics, com_pos, com_vel = mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_comVel
+        qpos_w, qvel_w, qacc_w = (int(w) for w in _BLOWUP_WARNINGS)
+        step, kinematics = mujoco.mj_step, mujoco.mj_kinematics
+        com_pos, com_vel = mujoco.mj_comPos, mujoco.mj_comVel
         gather, state, nq = self._featurizer.gather, self._state, self._nq
-        mine = []
         while (j := next(counter)) < n:
             i = order[j]
             if active is not None and not active[i]:
                 continue
             s = sims[i]
+            m, d = s.model, s.data
             s.ctrl[:] = ctrl[s.ctrl_slice]
             t = clock()
-            mujoco.mj_step(s.model, s.data, fs)
+            step(m, d, fs)
             cost[i] += 0.2 * (clock() - t - cost[i])
             w = s.warn
             if w[qpos_w] or w[qvel_w] or w[qacc_w]:
                 blown[i] = True
                 w[_BLOWUP_WARNINGS] = 0
-            m, d = s.model, s.data
             kinematics(m, d)
             com_pos(m, d)
             com_vel(m, d)
-            gather(i, d)
-            st = state[i]
-            st[: s.nq] = s.qpos
-            st[nq : nq + s.nv] = s.qvel
-            mine.append(i)
-        if mine:
-            rows = np.array(mine)
-            self._obs[rows] = self._featurizer.compute(rows)
+            if s.copies is not None:
+                for dst, src in s.copies:
+                    dst[...] = src
+            else:
+                gather(i, d)
+                state[i, : s.nq] = s.qpos
+                state[i, nq : nq + s.nv] = s.qvel
 
     def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
         """Step and featurise every (active) sub-env on all threads."""
@@ -402,7 +415,10 @@ class SMPEnv(EnvBase):
             self._work(counter, ctrl, active)
             for f in futures:
                 f.result()
-        self._order = np.argsort(-self._cost, kind="stable")
+        # One vectorised featurisation of all sub-envs (its cost is per numpy call, not per row).
+        self._obs[:] = self._featurizer.compute()
+        cost = self._cost
+        self._order = sorted(range(len(cost)), key=cost.__getitem__, reverse=True)
 
     # ------------------------------------------------------------------ output
     def _output(
@@ -413,11 +429,16 @@ class SMPEnv(EnvBase):
         # cost of building the output): the keys, shapes and devices below are fixed and match the
         # specs, which check_env_specs verifies in the tests.
         new = TensorDict._new_unsafe
+        flags = np.empty((3, n, 1), bool)  # terminated, truncated, done
+        flags[0, :, 0] = terminated
+        flags[1, :, 0] = truncated
+        np.logical_or(flags[0], flags[1], out=flags[2])
         obs = torch.from_numpy(self._obs.copy())
-        term = torch.from_numpy(terminated.reshape(n, 1).copy())
-        trunc = torch.from_numpy(truncated.reshape(n, 1).copy())
+        term, trunc, done = torch.from_numpy(flags).unbind(0)
         if dev.type != "cpu":
-            obs, term, trunc = (x.to(dev, non_blocking=True) for x in (obs, term, trunc))
+            obs, term, trunc, done = (
+                x.to(dev, non_blocking=True) for x in (obs, term, trunc, done)
+            )
         limbs = new(
             {
                 "obs": obs,
@@ -443,7 +464,7 @@ class SMPEnv(EnvBase):
             "graph": graph,
             "terminated": term,
             "truncated": trunc,
-            "done": term | trunc,
+            "done": done,
         }
         if reward is not None:
             r = torch.from_numpy(reward.astype(np.float32).reshape(n, 1))
@@ -493,7 +514,7 @@ class SMPEnv(EnvBase):
                 names = ", ".join(f"{self.robots[i].name!r} (sub-env {i})" for i in rows)
                 raise ValueError(f"SMPEnv: non-finite (NaN/inf) action for robot {names}")
         out = np.clip(a, -1.0, 1.0, dtype=np.float64)
-        out[~self._amask_np] = 0.0
+        out[self._no_motor] = 0.0  # torso and padding (even NaN there is ignored)
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -505,13 +526,16 @@ class SMPEnv(EnvBase):
         self._run_all(ctrl, active)
 
         st = self._state
-        rows = self._rows
-        x = st[rows, self._x_col]
-        z = st[rows, self._z_col]
-        pitch = st[rows, self._pitch_col]
+        if self._root_cols is not None:  # the usual layout: qpos starts with x, z, pitch
+            x, z, pitch = (st[:, c] for c in self._root_cols)
+            x = x.copy()
+        else:
+            rows = self._rows
+            x, z, pitch = st[rows, self._x_col], st[rows, self._z_col], st[rows, self._pitch_col]
         blown = self._blown.copy()
-        if not (np.isfinite(st).all() and np.isfinite(self._obs).all()):
-            blown = blown | ~(np.isfinite(st).all(axis=1) & np.isfinite(self._obs).all(axis=(1, 2)))
+        # Any non-finite qpos or qvel shows up in the observation (positions, rotations, cvel).
+        if not np.isfinite(self._obs).all():
+            blown |= ~np.isfinite(self._obs).all(axis=(1, 2))
         r = self._rules
         sq = np.einsum("nk,nk->n", a, a)
         with np.errstate(invalid="ignore"):
