@@ -338,3 +338,48 @@ def test_truncation_is_not_termination():
     expected = torch.tensor([False] * 4 + [True] + [False] * 4 + [True] + [False] * 2)
     assert (trunc == expected[:, None]).all()
     assert (done == trunc).all()
+
+
+def test_error_in_a_physics_thread_is_raised_not_hung():
+    import threading
+
+    env = SMPEnv(robots(*MIXED) * 3, seed=0, num_threads=2)
+    td = env.reset()
+    td["limbs", "action"] = torch.zeros(env.action_spec["limbs", "action"].shape)
+    for s in env._sims:  # every sub-env fails, whichever thread steps it
+        s.ctrl_slice = slice(0, 1000)
+    errors = []
+
+    def step():
+        try:
+            env.step(td)
+        except ValueError as e:
+            errors.append(e)
+
+    t = threading.Thread(target=step, daemon=True)
+    t.start()
+    t.join(timeout=30)
+    assert not t.is_alive() and len(errors) == 1
+
+
+def test_error_in_a_helper_thread_reaches_the_caller():
+    import threading
+
+    from gcnt.envs.smpenv import _StepQueue
+
+    env = SMPEnv(robots(*MIXED), seed=0, num_threads=2)
+    env.reset()
+    for s in env._sims:
+        s.ctrl_slice = slice(0, 1000)
+    queue = _StepQueue(list(range(4)))
+
+    def helper():
+        with pytest.raises(ValueError):
+            env._work(queue, np.zeros(3), 4)
+
+    t = threading.Thread(target=helper, daemon=True)
+    t.start()
+    with pytest.raises(ValueError):
+        queue.wait()
+    t.join(timeout=30)
+    assert not t.is_alive()

@@ -40,7 +40,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=300, help="batched steps per round (default 300)")
     p.add_argument("--rounds", type=int, default=5, help="interleaved rounds (default 5)")
     p.add_argument(
-        "--threads", type=int, default=None, help="env physics threads (default: all CPUs)"
+        "--threads",
+        type=int,
+        default=None,
+        help="env physics threads (default: automatic, up to all CPUs)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
@@ -112,12 +115,15 @@ def run(args: argparse.Namespace) -> int:
         env_rates.append(n * args.steps / dt)
         raw_rates.append(n * args.steps / raw.round(args.steps))
     env.close()
+    used = env.thread_use
+    multi = sum(v for k, v in used.items() if k > 1) / max(1, sum(used.values()))
     env_med, raw_med = statistics.median(env_rates), statistics.median(raw_rates)
     result = {
         "robots": n,
         "distinct_robots": len(env.distinct_robots),
         "max_limbs": env.max_limbs,
         "threads": env.num_threads,
+        "share_of_steps_multithreaded": round(multi, 3),
         "frame_skip": env.frame_skip,
         "batched_steps_per_round": args.steps,
         "rounds": args.rounds,
@@ -133,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(
             f"SMPEnv: {n} sub-envs ({result['distinct_robots']} distinct robots), K={env.max_limbs}, "
-            f"{env.num_threads} threads, frame_skip {env.frame_skip}; median of {args.rounds} "
+            f"up to {env.num_threads} threads ({multi:.0%} of steps used more than one), "
+            f"frame_skip {env.frame_skip}; median of {args.rounds} "
             f"interleaved rounds of {args.steps} batched steps\n"
             f"  env steps/s (obs, random actions, resets): {env_med:10.1f}\n"
             f"  raw mj_step loop steps/s (1 thread)      : {raw_med:10.1f}\n"

@@ -30,11 +30,12 @@ observation is made finite. The other sub-envs go on; the next (partial) reset r
 
 from __future__ import annotations
 
-import itertools
 import logging
 import os
+import threading
 import time
 import warnings
+from collections import Counter, deque
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -74,6 +75,12 @@ _BLOWUP_WARNINGS = np.array(
 )
 
 
+# num_threads=None: every _TUNE_PERIOD steps, try the other setting (1 thread or all) for
+# _TUNE_PROBE steps, then keep whichever stepped faster.
+_TUNE_PERIOD = 100
+_TUNE_PROBE = 5
+
+
 class PhysicsBlowupWarning(RuntimeWarning):
     """The physics of a sub-env blew up; its episode was ended (terminated)."""
 
@@ -100,6 +107,48 @@ class _Sim:
     copies: list[tuple[np.ndarray, np.ndarray]] | None = None
 
 
+class _StepQueue:
+    """The sub-envs of one step, handed out in order to the threads; the thread that finishes
+    the last one (or fails) wakes the caller of :meth:`wait`."""
+
+    __slots__ = ("_done", "_error", "_finished", "_items", "_lock", "_next", "_total")
+
+    def __init__(self, items: list[int]):
+        self._items, self._total = items, len(items)
+        self._next = self._finished = 0
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+        self._error: BaseException | None = None
+        if not items:
+            self._done.set()
+
+    def take(self, limit: int) -> int:
+        """The next sub-env if its queue position is below ``limit``, else -1."""
+        with self._lock:
+            j = self._next
+            if j >= limit or self._error is not None:
+                return -1
+            self._next = j + 1
+        return self._items[j]
+
+    def finish(self) -> None:
+        with self._lock:
+            self._finished += 1
+            if self._finished == self._total:
+                self._done.set()
+
+    def fail(self, error: BaseException) -> None:
+        with self._lock:
+            self._error = error
+        self._done.set()
+
+    def wait(self) -> None:
+        """Return when every sub-env is done; re-raise a helper thread's error."""
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+
+
 def _robot_key(r: Robot) -> tuple[str, str]:
     return (r.name, r.xml)
 
@@ -121,8 +170,10 @@ class SMPEnv(EnvBase):
         max_episode_steps: control steps before an episode is truncated.
         device: where the output tensors live (the simulation runs on the CPU).
         seed: seed of the reset noise (see :meth:`set_seed`).
-        num_threads: threads stepping the physics (default: the CPUs this process may use,
-            at most N).
+        num_threads: threads stepping the physics, at most N. Default (None): the CPUs this
+            process may use, or 1 whenever that steps faster (the env times both settings now
+            and then; on a machine shared with other busy processes a second thread can cost
+            more than it gains). Results do not depend on it.
         robot_ids: each sub-env's index into a run-wide robot table, emitted as ``morph_id``
             (default: the index of its robot in :attr:`table`).
         frame_skip: physics steps per control step (SMPENV: 4).
@@ -281,15 +332,22 @@ class SMPEnv(EnvBase):
         self._no_motor = ~self._amask_np
 
         # Threads: all of them pull sub-envs from one queue, the slowest first.
+        self._auto = num_threads is None
         if num_threads is None:
             try:
                 num_threads = len(os.sched_getaffinity(0))
             except AttributeError:  # not on Linux
                 num_threads = os.cpu_count() or 1
         self.num_threads = max(1, min(int(num_threads), n))
+        self._auto = self._auto and self.num_threads > 1
+        self._use, self._tick = self.num_threads, 0
+        self._times = {k: deque(maxlen=_TUNE_PROBE) for k in {1, self.num_threads}}
+        #: how many steps ran with how many physics threads
+        self.thread_use: Counter[int] = Counter()
         # Python lists: the hot loop reads and writes single items, which numpy makes slow.
         self._cost = [_cost_guess(s.model, self.frame_skip) for s in self._sims]
         self._order = sorted(range(n), key=lambda i: -self._cost[i])
+        self._reserve = max(1, n // 12)  # sub-envs the helpers leave to the calling thread
         self._pool = (
             ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix="smpenv")
             if self.num_threads > 1
@@ -368,53 +426,73 @@ class SMPEnv(EnvBase):
         st[: s.nq] = s.qpos
         st[self._nq : self._nq + s.nv] = s.qvel
 
-    def _work(self, counter, ctrl: np.ndarray, active: np.ndarray | None) -> None:
-        """One thread's share of a step: pull sub-envs from ``counter`` until none is left, step
-        them and copy out what the observation needs."""
-        fs, order, n = self.frame_skip, self._order, len(self._order)
-        clock, cost, blown, sims = time.perf_counter, self._cost, self._blown, self._sims
-        qpos_w, qvel_w, qacc_w = (int(w) for w in _BLOWUP_WARNINGS)
-        step, kinematics = mujoco.mj_step, mujoco.mj_kinematics
-        com_pos, com_vel = mujoco.mj_comPos, mujoco.mj_comVel
-        gather, state, nq = self._featurizer.gather, self._state, self._nq
-        while (j := next(counter)) < n:
-            i = order[j]
-            if active is not None and not active[i]:
-                continue
-            s = sims[i]
-            m, d = s.model, s.data
-            s.ctrl[:] = ctrl[s.ctrl_slice]
-            t = clock()
-            step(m, d, fs)
-            cost[i] += 0.2 * (clock() - t - cost[i])
-            w = s.warn
-            if w[qpos_w] or w[qvel_w] or w[qacc_w]:
-                blown[i] = True
-                w[_BLOWUP_WARNINGS] = 0
-            kinematics(m, d)
-            com_pos(m, d)
-            com_vel(m, d)
-            if s.copies is not None:
-                for dst, src in s.copies:
-                    dst[...] = src
-            else:
-                gather(i, d)
-                state[i, : s.nq] = s.qpos
-                state[i, nq : nq + s.nv] = s.qvel
+    def _work(self, queue: _StepQueue, ctrl: np.ndarray, limit: int) -> None:
+        """One thread's share of a step: take sub-envs from ``queue`` (up to position ``limit``),
+        step them and copy out what the observation needs."""
+        try:
+            fs, clock, cost, blown = self.frame_skip, time.perf_counter, self._cost, self._blown
+            sims, gather, state, nq = self._sims, self._featurizer.gather, self._state, self._nq
+            qpos_w, qvel_w, qacc_w = (int(w) for w in _BLOWUP_WARNINGS)
+            step, kinematics = mujoco.mj_step, mujoco.mj_kinematics
+            com_pos, com_vel = mujoco.mj_comPos, mujoco.mj_comVel
+            take, finish = queue.take, queue.finish
+            while (i := take(limit)) >= 0:
+                s = sims[i]
+                m, d = s.model, s.data
+                s.ctrl[:] = ctrl[s.ctrl_slice]
+                t = clock()
+                step(m, d, fs)
+                cost[i] += 0.2 * (clock() - t - cost[i])
+                w = s.warn
+                if w[qpos_w] or w[qvel_w] or w[qacc_w]:
+                    blown[i] = True
+                    w[_BLOWUP_WARNINGS] = 0
+                kinematics(m, d)
+                com_pos(m, d)
+                com_vel(m, d)
+                if s.copies is not None:
+                    for dst, src in s.copies:
+                        dst[...] = src
+                else:
+                    gather(i, d)
+                    state[i, : s.nq] = s.qpos
+                    state[i, nq : nq + s.nv] = s.qvel
+                finish()
+        except BaseException as e:
+            queue.fail(e)
+            raise
+
+    def _threads_now(self) -> int:
+        """How many threads step the physics this time (see ``num_threads`` in the class doc)."""
+        if not self._auto:
+            return self.num_threads
+        self._tick += 1
+        other = 1 if self._use == self.num_threads else self.num_threads
+        if self._tick % _TUNE_PERIOD >= _TUNE_PERIOD - _TUNE_PROBE:
+            return other  # probe the other setting for a few steps
+        if self._tick % _TUNE_PERIOD == 0:  # after a probe: keep the faster setting
+            mean = {k: (sum(v) / len(v) if v else 0.0) for k, v in self._times.items()}
+            self._use = min(mean, key=mean.__getitem__)
+        return self._use
 
     def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
         """Step and featurise every (active) sub-env on all threads."""
-        counter = itertools.count()
-        if self._pool is None:
-            self._work(counter, ctrl, active)
-        else:
-            futures = [
-                self._pool.submit(self._work, counter, ctrl, active)
-                for _ in range(self.num_threads - 1)
-            ]
-            self._work(counter, ctrl, active)
-            for f in futures:
-                f.result()
+        items = self._order if active is None else [i for i in self._order if active[i]]
+        queue = _StepQueue(items)
+        threads = self._threads_now()
+        t0 = time.perf_counter()
+        if threads > 1 and len(items) > 1:
+            # Helpers leave the cheapest few sub-envs (queued last) to this thread, so that it
+            # is usually the one to finish and need not wait to be woken up; and it never waits
+            # for a helper that has not started (under CPU contention it just does all the work).
+            limit = len(items) - self._reserve
+            for _ in range(threads - 1):
+                self._pool.submit(self._work, queue, ctrl, limit)
+        self._work(queue, ctrl, len(items))
+        queue.wait()
+        if self._auto:
+            self._times[threads].append(time.perf_counter() - t0)
+        self.thread_use[threads] += 1
         # One vectorised featurisation of all sub-envs (its cost is per numpy call, not per row).
         self._obs[:] = self._featurizer.compute()
         cost = self._cost
