@@ -119,7 +119,9 @@ class SWATConfig(TransformerConfig):
     """SWAT (Hong et al. 2022): AMORPHEUS + traversal position embeddings + a relational bias
     Linear(3→heads) of [PPR, normalised Laplacian, hop distance / N] in the first layer."""
 
-    traversal_widths: tuple[int, int, int] = (42, 42, 44)
+    #: widths of the pre/in/post-order embeddings; default: d_model split in three, the last
+    #: part taking the remainder ((42, 42, 44) at d_model 128, as in SWAT)
+    traversal_widths: tuple[int, int, int] | None = None
     #: size of each traversal-position table: the most limbs a robot may have
     max_limbs: int = 32
 
@@ -127,6 +129,9 @@ class SWATConfig(TransformerConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.traversal_widths is None:
+            third = self.d_model // 3
+            self.traversal_widths = (third, third, self.d_model - 2 * third)
         self.traversal_widths = tuple(self.traversal_widths)  # type: ignore[assignment]
         if len(self.traversal_widths) != 3 or sum(self.traversal_widths) != self.d_model:
             raise ValueError(

@@ -38,9 +38,12 @@ def evaluate(
     robots (any robots, including never-seen robot files), so its graph table matches them.
     """
     robots = list({r.name: r for r in resolve_robots(robot_specs)}.values())  # unique, in order
+    # pad at least as much as in training: size-dependent networks (the per-robot MLP) need it
+    train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
+    max_limbs = max(train_k, *(r.num_limbs for r in robots))
     copies = max(1, min(parallel, episodes))
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
-    env = make_env(recipe, robots, copies=copies, seed=seed)
+    env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=max_limbs)
     actor = make_net(recipe, env.base_env.table, "td3_actor")
     actor.load_state_dict(actor_state)
     actor.eval()

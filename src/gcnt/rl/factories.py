@@ -28,7 +28,12 @@ def train_robots(recipe: Recipe) -> list[Robot]:
 
 
 def make_env(
-    recipe: Recipe, robots: Sequence[Robot], *, copies: int = 1, seed: int | None = None
+    recipe: Recipe,
+    robots: Sequence[Robot],
+    *,
+    copies: int = 1,
+    seed: int | None = None,
+    max_limbs: int | None = None,
 ) -> TransformedEnv:
     """The batched env over ``copies`` of each robot, with per-episode returns tracked.
 
@@ -38,7 +43,7 @@ def make_env(
     ids = [i for i in range(len(robots)) for _ in range(copies)]
     env = SMPEnv(
         instances,
-        max_limbs=recipe.env.max_limbs,
+        max_limbs=max_limbs or recipe.env.max_limbs,
         max_episode_steps=recipe.env.max_episode_steps,
         seed=recipe.seed if seed is None else seed,
         num_threads=recipe.env.num_threads,

@@ -1,0 +1,181 @@
+"""TD3 pipeline: the per-robot target, buffers, every recipe end to end (tiny), resume, eval."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from gcnt.cli import main as gcnt
+from gcnt.morphology import morphologies_dir
+from gcnt.recipes import load_recipe
+from gcnt.rl import replay as rb
+from gcnt.rl.run_dir import RunDir
+from gcnt.rl.td3 import train
+from gcnt.rl.td3_loss import PerRobotTD0, masked_mean
+
+ROOT = Path(__file__).parents[1]
+RECIPES = sorted(p for p in (ROOT / "recipes").rglob("*.yaml") if not p.name.startswith("_"))
+
+TINY = [
+    "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}",
+    "env.max_episode_steps=15",
+    "collector.init_random_frames=40",
+    "collector.steps_per_batch=5",
+    "replay_buffer.batch_size=8",
+    "replay_buffer.size_per_robot=2000",
+    "logger.backend=none",
+    "logger.progress=false",
+    "logger.log_interval=40",
+    "eval.episodes=1",
+    "eval.robots=[hopper_3]",
+    "optim.updates_per_step=0.25",
+    "eval.interval=0",
+    "checkpoint_interval=60",
+]
+
+
+def tiny(path, run_dir, *extra, frames=None):
+    recipe = load_recipe(path, [*TINY, f"run_dir={run_dir}", *extra])
+    n = len(rb_robots(recipe))
+    # a few update phases whatever the robot count: random steps, then ~4 lockstep chunks
+    recipe.collector.init_random_frames = 5 * n
+    recipe.collector.total_frames = frames or 20 * n
+    return recipe
+
+
+def rb_robots(recipe):
+    from gcnt.rl.factories import train_robots
+
+    return train_robots(recipe)
+
+
+def test_td_target_is_per_robot_mean_and_truncation_bootstraps():
+    est = PerRobotTD0(gamma=0.5, value_network=None)
+    est.set_keys(value=("limbs", "state_action_value"))
+    q_next = torch.tensor([[1.0, 2.0, 100.0], [4.0, 8.0, 0.0]]).unsqueeze(-1)  # limb 2: padding
+    td = TensorDict(
+        {
+            "limbs": {"action_mask": torch.tensor([[[1], [1], [0]], [[1], [1], [0]]]).bool()},
+            "next": {
+                "limbs": {"state_action_value": q_next},
+                "reward": torch.tensor([[1.0], [1.0]]),
+                "done": torch.tensor([[True], [True]]),
+                "terminated": torch.tensor([[False], [True]]),  # 0: truncated, 1: terminated
+            },
+        },
+        batch_size=[2],
+    )
+    target = est.value_estimate(td)
+    assert target.shape == (2, 1, 1)
+    # robot 0 truncated: bootstrapped from the mean over real motor limbs (1+2)/2; 1 terminated
+    assert torch.allclose(target.flatten(), torch.tensor([1.0 + 0.5 * 1.5, 1.0]))
+
+
+def test_masked_mean_ignores_padding():
+    values = torch.tensor([[1.0, 3.0, 1000.0]])
+    assert masked_mean(values, torch.tensor([[True, True, False]])) == 2.0
+
+
+def test_replay_routes_by_morph_id_and_mixes_all_robots():
+    replay = rb.make_replay(3, capacity=50, batch_size=4)
+    data = TensorDict(
+        {
+            "morph_id": torch.tensor([0, 1, 2, 1, 1, 2]),
+            "limbs": {"obs": torch.arange(6.0).view(6, 1, 1), "action": torch.zeros(6, 1, 1)},
+            "next": {
+                "limbs": {"obs": torch.zeros(6, 1, 1)},
+                "reward": torch.zeros(6, 1),
+                "done": torch.zeros(6, 1, dtype=torch.bool),
+                "terminated": torch.zeros(6, 1, dtype=torch.bool),
+                "truncated": torch.zeros(6, 1, dtype=torch.bool),
+            },
+            "graph": {"adj": torch.zeros(6, 1, 1, dtype=torch.bool)},  # not stored
+        },
+        batch_size=[6],
+    )
+    assert rb.store(replay, data) == 6
+    assert [len(replay[i]) for i in range(3)] == [1, 3, 2]
+    assert set(rb.sample_robot(replay, 1)["morph_id"].tolist()) == {1}
+    mixed = rb.sample_mixed(replay)
+    assert mixed.shape == (12,) and mixed["morph_id"].bincount().tolist() == [4, 4, 4]
+    assert "graph" not in mixed.keys()
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(ROOT / "recipes")))
+def test_every_recipe_trains_a_few_steps(path, tmp_path):
+    recipe = tiny(path, tmp_path / "run")
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    rows = run.read_metrics()
+    assert rows[-1]["env_steps"] >= recipe.collector.total_frames
+    assert rows[-1]["updates"] > 0 and any("loss_critic" in r for r in rows)
+    assert run.checkpoint_path.exists()
+    assert list((run.path / "eval").glob("step*.json"))
+
+
+@pytest.mark.parametrize("method", ["amorpheus", "swat", "smp", "gcnt_no_dist", "mlp"])
+def test_methods_selectable_by_override(method, tmp_path):
+    recipe = tiny(ROOT / "recipes/smpenv/walker.yaml", tmp_path / "run", f"network.name={method}")
+    if method in ("smp", "mlp"):
+        recipe.network.kwargs = {}
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    assert run.read_metrics()[-1]["updates"] > 0
+
+
+def test_paper_and_mixed_schedules_count_every_stored_step(tmp_path):
+    for schedule in ("paper", "mixed"):
+        recipe = tiny(ROOT / "recipes/smpenv/hopper.yaml", tmp_path / schedule)
+        recipe.collector.schedule = schedule
+        run = RunDir(recipe.run_dir)
+        run.create(recipe)
+        train(recipe, run)
+        last = run.read_metrics()[-1]
+        # 3 robots x 5 lockstep steps per chunk: every stored transition counted
+        assert last["env_steps"] % 15 == 0 and last["env_steps"] >= recipe.collector.total_frames
+
+
+def test_resume_continues_the_step_count_and_metrics(tmp_path):
+    run_dir = tmp_path / "run"
+    recipe = tiny(ROOT / "recipes/smpenv/hopper.yaml", run_dir, frames=90)
+    run = RunDir(run_dir)
+    run.create(recipe)
+    train(recipe, run)  # "killed" after 90 steps: its checkpoint is at 90
+    first = run.read_metrics()
+    state = run.load_checkpoint()
+    assert state["env_steps"] == 90
+    # a metrics line written after the checkpoint (the run died later) is dropped on resume
+    run.log_metrics({"env_steps": 105, "updates": 0})
+    assert gcnt(["train", "--resume", str(run_dir), "collector.total_frames=150"]) == 0
+    rows = run.read_metrics()
+    assert rows[: len(first)] == first
+    assert [r["env_steps"] for r in rows[len(first) :]] == [120, 150]
+    assert run.load_checkpoint()["learner"]["updates"] > state["learner"]["updates"]
+    # the resumed run refuses to be created again over itself
+    assert gcnt(["train", str(ROOT / "recipes/smpenv/hopper.yaml"), f"run_dir={run_dir}"]) == 2
+
+
+def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    recipe = tiny(ROOT / "recipes/smpenv/hopper.yaml", run_dir)
+    run = RunDir(run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    unseen = tmp_path / "walker_6_main.xml"
+    shutil.copy(morphologies_dir() / "smpenv" / "walker_6_main.xml", unseen)
+    out = tmp_path / "eval.json"
+    assert gcnt(["eval", str(run_dir), "--robots", str(unseen), "hopper_4",
+                 "--episodes", "3", "--json", str(out)]) == 0
+    results = json.loads(out.read_text())["robots"]
+    assert set(results) == {"walker_6_main", "hopper_4"}
+    assert results["walker_6_main"]["episodes"] == 3
+    assert "walker_6_main" in capsys.readouterr().out
+
+
+def test_misspelt_recipe_key_fails_with_a_clear_message(capsys):
+    assert gcnt(["train", str(ROOT / "recipes/smpenv/walker.yaml"), "optim.lrr=1"]) == 2
