@@ -383,3 +383,24 @@ def test_error_in_a_helper_thread_reaches_the_caller():
         queue.wait()
     t.join(timeout=30)
     assert not t.is_alive()
+
+
+def test_thread_count_tuning():
+    """num_threads=None probes 1 thread vs all now and then and keeps the faster."""
+    env = SMPEnv(robots("walker_7_main") * 4, seed=0)
+    if env.num_threads == 1:
+        pytest.skip("one CPU")
+    fast = {1: 1.0, env.num_threads: 0.5}
+    used = []
+    for _ in range(400):
+        k = env._threads_now()
+        used.append(k)
+        env._times[k].append(fast[k])
+    assert used.count(1) == 16  # two probes of 8 steps, with a longer pause after the first
+    assert env._use == env.num_threads
+    fast = {1: 0.5, env.num_threads: 1.0}  # now a single thread is faster
+    for _ in range(800):
+        k = env._threads_now()
+        env._times[k].append(fast[k])
+    assert env._use == 1
+    assert SMPEnv(robots("walker_7_main") * 4, num_threads=2)._threads_now() == 2  # fixed

@@ -26,6 +26,9 @@ Blow-ups: a sub-env whose state turns non-finite, or on which MuJoCo raises one 
 bad-qpos/qvel/qacc warnings (MuJoCo then resets that ``MjData`` by itself), ends its episode with
 ``terminated`` and a :class:`PhysicsBlowupWarning` naming the robot; its reward is 0 and its
 observation is made finite. The other sub-envs go on; the next (partial) reset restarts it.
+
+An SMPEnv holds threads and views into MuJoCo's memory and does not pickle: give multi-process
+collectors a constructor (``functools.partial(SMPEnv, robots, ...)``), not an instance.
 """
 
 from __future__ import annotations
@@ -75,10 +78,14 @@ _BLOWUP_WARNINGS = np.array(
 )
 
 
-# num_threads=None: every _TUNE_PERIOD steps, try the other setting (1 thread or all) for
-# _TUNE_PROBE steps, then keep whichever stepped faster.
+# num_threads=None: see SMPEnv._threads_now
 _TUNE_PERIOD = 100
-_TUNE_PROBE = 5
+_TUNE_MAX_PERIOD = 1600
+_TUNE_PROBE = 8
+
+
+def _median(values) -> float:
+    return float(np.median(np.fromiter(values, float)))
 
 
 class PhysicsBlowupWarning(RuntimeWarning):
@@ -341,6 +348,8 @@ class SMPEnv(EnvBase):
         self.num_threads = max(1, min(int(num_threads), n))
         self._auto = self._auto and self.num_threads > 1
         self._use, self._tick = self.num_threads, 0
+        self._period = _TUNE_PERIOD
+        self._probe_at = _TUNE_PERIOD
         self._times = {k: deque(maxlen=_TUNE_PROBE) for k in {1, self.num_threads}}
         #: how many steps ran with how many physics threads
         self.thread_use: Counter[int] = Counter()
@@ -463,16 +472,26 @@ class SMPEnv(EnvBase):
             raise
 
     def _threads_now(self) -> int:
-        """How many threads step the physics this time (see ``num_threads`` in the class doc)."""
+        """How many threads step the physics this time (see ``num_threads`` in the class doc).
+
+        With ``num_threads=None``: now and then, step ``_TUNE_PROBE`` times with the other setting
+        (1 thread or all), and switch if its median physics time was 5% lower. The pause between
+        probes doubles (up to ``_TUNE_MAX_PERIOD`` steps) while the choice holds.
+        """
         if not self._auto:
             return self.num_threads
         self._tick += 1
         other = 1 if self._use == self.num_threads else self.num_threads
-        if self._tick % _TUNE_PERIOD >= _TUNE_PERIOD - _TUNE_PROBE:
-            return other  # probe the other setting for a few steps
-        if self._tick % _TUNE_PERIOD == 0:  # after a probe: keep the faster setting
-            mean = {k: (sum(v) / len(v) if v else 0.0) for k, v in self._times.items()}
-            self._use = min(mean, key=mean.__getitem__)
+        left = self._probe_at - self._tick
+        if 0 <= left < _TUNE_PROBE:
+            return other  # probing
+        if left < 0:  # a probe just ended
+            mine, theirs = self._times[self._use], self._times[other]
+            if theirs and mine and _median(theirs) < 0.95 * _median(mine):
+                self._use, self._period = other, _TUNE_PERIOD
+            else:
+                self._period = min(2 * self._period, _TUNE_MAX_PERIOD)
+            self._probe_at = self._tick + self._period
         return self._use
 
     def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
