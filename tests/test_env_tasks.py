@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from gcnt.envs.smpenv import SMPEnv
-from gcnt.envs.tasks import healthy, stack_rules, task_rules
+from gcnt.envs.tasks import task_rules
 from gcnt.morphology.benchmarks import smpenv_robot
 
 # robot -> (z_low, z_high) of the healthy test (spec: smpenv.md, "Reward, termination, reset")
@@ -31,10 +31,9 @@ EPS = 1e-6
 
 
 def _check(rules, z, pitch=0.0, state=None):
-    r = stack_rules([rules])
-    st = None if state is None else np.asarray(state, float)[None]
-    mask = None if st is None else np.ones_like(st, bool)
-    return bool(healthy(r, np.array([z]), np.array([pitch]), st, mask)[0])
+    if state is None:
+        return rules.healthy(z, pitch)
+    return rules.healthy(z, pitch, np.asarray(state, float))
 
 
 @pytest.mark.parametrize("name", sorted(Z_BOUNDS))

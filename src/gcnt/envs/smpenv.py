@@ -56,10 +56,8 @@ from gcnt.envs.tasks import (
     FRAME_SKIP,
     RootJoints,
     TaskRules,
-    healthy,
     reset_noise,
     root_joints,
-    stack_rules,
     task_rules,
 )
 from gcnt.morphology import GLOBAL_LIMB_TYPES, Robot
@@ -109,8 +107,10 @@ class _Sim:
     qvel: np.ndarray
     ctrl: np.ndarray
     warn: np.ndarray  # data.warning.number
-    # (destination, source) views that copy what the observation and the healthy test need out
-    # of the MjData; None: use LimbFeaturizer.gather (limbs that are not consecutive bodies)
+    inv_dt: float  # 1 / control period
+    rest: np.ndarray  # qpos addresses of s[2:] (all but root x and z), for the hopper's test
+    # (destination, source) views that copy what the observation needs out of the MjData;
+    # None: use LimbFeaturizer.gather (limbs that are not consecutive bodies)
     copies: list[tuple[np.ndarray, np.ndarray]] | None = None
 
 
@@ -264,6 +264,7 @@ class SMPEnv(EnvBase):
                 raise ValueError(
                     f"robot {r.name!r}: actuators {np.nonzero(src < 0)[0].tolist()} drive no limb joint"
                 )
+            root = root_joints(r, model)
             ctrl_rows.append(np.full(model.nu, i))
             ctrl_cols.append(src)
             self._sims.append(
@@ -273,7 +274,7 @@ class SMPEnv(EnvBase):
                     model=model,
                     data=data,
                     rules=rules[lid],
-                    root=root_joints(r, model),
+                    root=root,
                     ctrl_slice=slice(offset, offset + model.nu),
                     nq=model.nq,
                     nv=model.nv,
@@ -281,32 +282,14 @@ class SMPEnv(EnvBase):
                     qvel=data.qvel,
                     ctrl=data.ctrl,
                     warn=data.warning.number,
+                    inv_dt=1.0 / (model.opt.timestep * self.frame_skip),
+                    rest=np.setdiff1d(np.arange(model.nq), [root.x, root.z]),
                 )
             )
             offset += model.nu
         self._ctrl_rows = np.concatenate(ctrl_rows)
         self._ctrl_cols = np.concatenate(ctrl_cols)
-        self._rules = stack_rules([s.rules for s in self._sims])
-        self.dt = np.array(
-            [m.opt.timestep * self.frame_skip for m in (s.model for s in self._sims)]
-        )
-
-        # Per-sub-env state: (qpos, qvel) padded, which entries count for the hopper state test.
-        nq = max(s.model.nq for s in self._sims)
-        nv = max(s.model.nv for s in self._sims)
-        self._state = np.zeros((n, nq + nv))
-        self._state_mask = np.zeros((n, nq + nv), bool)
-        self._nq = nq
-        for s in self._sims:
-            self._state_mask[s.index, : s.model.nq] = True
-            self._state_mask[s.index, nq : nq + s.model.nv] = True
-            self._state_mask[s.index, [s.root.x, s.root.z]] = False
-        self._x_col = np.array([s.root.x for s in self._sims])
-        self._z_col = np.array([s.root.z for s in self._sims])
-        self._pitch_col = np.array([s.root.pitch for s in self._sims])
-        self._rows = np.arange(n)
-        same = all((s.root.x, s.root.z, s.root.pitch) == (0, 1, 2) for s in self._sims)
-        self._root_cols = (0, 1, 2) if same else None
+        self.dt = np.array([1.0 / s.inv_dt for s in self._sims])
         self._x_prev = np.zeros(n)
         self._elapsed = np.zeros(n, np.int64)
         self._blown = np.zeros(n, bool)
@@ -314,12 +297,11 @@ class SMPEnv(EnvBase):
         self._last_truncated = np.zeros(n, bool)
         self._featurizer = LimbFeaturizer(robots, [s.model for s in self._sims], k)
         for s in self._sims:
-            pairs = self._featurizer.bind(s.index, s.data)
-            if pairs is not None:
-                pairs.append((self._state[s.index, : s.nq], s.qpos))
-                if s.rules.state_check:  # only the hopper's healthy test reads qvel
-                    pairs.append((self._state[s.index, nq : nq + s.nv], s.qvel))
-            s.copies = pairs
+            s.copies = self._featurizer.bind(s.index, s.data)
+        # Written per sub-env by the physics threads: reward, healthy test, squared actions.
+        self._reward = np.zeros(n)
+        self._healthy = np.ones(n, bool)
+        self._sq = np.zeros(n)
         self._obs = np.zeros((n, k, OBS_DIM), np.float32)
         self._limb_batch = torch.Size([n, k])
 
@@ -431,16 +413,15 @@ class SMPEnv(EnvBase):
         mujoco.mj_comPos(m, d)
         mujoco.mj_comVel(m, d)
         self._featurizer.gather(s.index, d)
-        st = self._state[s.index]
-        st[: s.nq] = s.qpos
-        st[self._nq : self._nq + s.nv] = s.qvel
 
     def _work(self, queue: _StepQueue, ctrl: np.ndarray, limit: int) -> None:
         """One thread's share of a step: take sub-envs from ``queue`` (up to position ``limit``),
-        step them and copy out what the observation needs."""
+        step them, copy out what the observation needs, and apply the task rules (reward and
+        healthy test, scalar arithmetic that overlaps with the other threads' physics)."""
         try:
             fs, clock, cost, blown = self.frame_skip, time.perf_counter, self._cost, self._blown
-            sims, gather, state, nq = self._sims, self._featurizer.gather, self._state, self._nq
+            sims, gather = self._sims, self._featurizer.gather
+            reward, healthy, x_prev, sq = self._reward, self._healthy, self._x_prev, self._sq
             qpos_w, qvel_w, qacc_w = (int(w) for w in _BLOWUP_WARNINGS)
             step, kinematics = mujoco.mj_step, mujoco.mj_kinematics
             com_pos, com_vel = mujoco.mj_comPos, mujoco.mj_comVel
@@ -464,8 +445,17 @@ class SMPEnv(EnvBase):
                         dst[...] = src
                 else:
                     gather(i, d)
-                    state[i, : s.nq] = s.qpos
-                    state[i, nq : nq + s.nv] = s.qvel
+                q, rules, root = s.qpos, s.rules, s.root
+                x = float(q[root.x])
+                if rules.state_check:
+                    ok = rules.healthy(q[root.z], q[root.pitch], q[s.rest], s.qvel)
+                else:
+                    ok = rules.healthy(q[root.z], q[root.pitch])
+                healthy[i] = ok
+                reward[i] = (
+                    (x - x_prev[i]) * s.inv_dt + rules.healthy_reward - rules.ctrl_cost * sq[i]
+                )
+                x_prev[i] = x
                 finish()
         except BaseException as e:
             queue.fail(e)
@@ -620,24 +610,15 @@ class SMPEnv(EnvBase):
         partial = tensordict.get("_step", None)
         active = None if partial is None else partial.reshape(n).cpu().numpy().astype(bool)
         ctrl = a[self._ctrl_rows, self._ctrl_cols]
-        self._run_all(ctrl, active)
-
-        st = self._state
-        if self._root_cols is not None:  # the usual layout: qpos starts with x, z, pitch
-            x, z, pitch = (st[:, c] for c in self._root_cols)
-            x = x.copy()
-        else:
-            rows = self._rows
-            x, z, pitch = st[rows, self._x_col], st[rows, self._z_col], st[rows, self._pitch_col]
+        np.einsum("nk,nk->n", a, a, out=self._sq)
+        with np.errstate(invalid="ignore"):
+            self._run_all(ctrl, active)
+        reward = self._reward.copy()
         blown = self._blown.copy()
         # Any non-finite qpos or qvel shows up in the observation (positions, rotations, cvel).
         if not np.isfinite(self._obs).all():
             blown |= ~np.isfinite(self._obs).all(axis=(1, 2))
-        r = self._rules
-        sq = np.einsum("nk,nk->n", a, a)
-        with np.errstate(invalid="ignore"):
-            ok = healthy(r, z, pitch, st, self._state_mask)
-            reward = (x - self._x_prev) / self.dt + r.healthy_reward - r.ctrl_cost * sq
+        ok = self._healthy
         terminated = ~ok | blown
         self._elapsed += 1
         truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
@@ -659,8 +640,6 @@ class SMPEnv(EnvBase):
             terminated[keep] = self._last_terminated[keep]
             truncated[keep] = self._last_truncated[keep]
             self._elapsed[keep] -= 1
-            x = np.where(keep, self._x_prev, x)
-        self._x_prev = x
         self._last_terminated = terminated
         self._last_truncated = truncated
         return self._output(reward, terminated, truncated)

@@ -16,8 +16,8 @@ cheetah     Δx/dt − 0.1·Σa²                never terminates               
 x, z and pitch are the qpos of the torso's root joints (slide x, slide z, hinge y), s is
 (qpos, qvel). The size-dependent bounds come from the body count in the robot's name
 (``walker_4_main`` → 4, ``hopper_5`` → 5); a name without a number falls back to the robot's limb
-count. Everything here is per robot; :func:`stack_rules` turns a list of rules into arrays so that
-the env evaluates the healthy test of all sub-envs at once.
+count. Everything here is per robot; the env applies the rules of each sub-env right after stepping
+it, in the physics threads.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from __future__ import annotations
 import logging
 import math
 import re
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -67,6 +66,18 @@ class TaskRules:
             or self.z_high < math.inf
             or self.pitch_max < math.inf
         )
+
+    def healthy(self, z: float, pitch: float, *state: np.ndarray) -> bool:
+        """The healthy test of one robot. ``state``: the arrays that make up s[2:], i.e. qpos
+        without root x and z, and qvel (read only by the hopper's test). NaN is unhealthy."""
+        if not self.can_terminate:
+            return True
+        if not (self.z_low < z < self.z_high and -self.pitch_max < pitch < self.pitch_max):
+            return False
+        if self.state_check:
+            # max() propagates NaN, and NaN < x is False: non-finite states fail too
+            return all(bool(np.abs(a).max(initial=0.0) < self.state_max) for a in state)
+        return True
 
 
 def body_count(robot: Robot) -> int:
@@ -136,57 +147,6 @@ def root_joints(robot: Robot, model: mujoco.MjModel) -> RootJoints:
         x_dof=int(model.jnt_dofadr[found["x"]]),
         z_dof=int(model.jnt_dofadr[found["z"]]),
     )
-
-
-@dataclass(frozen=True)
-class StackedRules:
-    """Rules of N sub-envs as arrays, for the vectorised reward and healthy test."""
-
-    healthy_reward: np.ndarray  # [N] float64
-    ctrl_cost: np.ndarray  # [N]
-    z_low: np.ndarray  # [N]
-    z_high: np.ndarray  # [N]
-    pitch_max: np.ndarray  # [N]
-    state_check: np.ndarray  # [N] bool
-    state_max: np.ndarray  # [N]
-    any_state_check: bool
-
-
-def stack_rules(rules: Sequence[TaskRules]) -> StackedRules:
-    def arr(name: str, dtype=np.float64) -> np.ndarray:
-        return np.array([getattr(r, name) for r in rules], dtype=dtype)
-
-    check = arr("state_check", bool)
-    return StackedRules(
-        healthy_reward=arr("healthy_reward"),
-        ctrl_cost=arr("ctrl_cost"),
-        z_low=arr("z_low"),
-        z_high=arr("z_high"),
-        pitch_max=arr("pitch_max"),
-        state_check=check,
-        state_max=arr("state_max"),
-        any_state_check=bool(check.any()),
-    )
-
-
-def healthy(
-    rules: StackedRules,
-    z: np.ndarray,
-    pitch: np.ndarray,
-    state: np.ndarray | None = None,
-    state_mask: np.ndarray | None = None,
-) -> np.ndarray:
-    """The healthy test of N sub-envs (bool [N]).
-
-    ``state`` [N, S] holds (qpos, qvel) padded with zeros; ``state_mask`` [N, S] marks the entries
-    that count for the hopper's ``|s[2:]| < 100`` test (everything but root x and z).
-    """
-    ok = (z > rules.z_low) & (z < rules.z_high) & (np.abs(pitch) < rules.pitch_max)
-    if rules.any_state_check and state is not None:
-        finite = np.isfinite(state).all(axis=1)
-        small = ((np.abs(state) < rules.state_max[:, None]) | ~state_mask).all(axis=1)
-        ok &= ~rules.state_check | (finite & small)
-    return ok
 
 
 def reset_noise(
