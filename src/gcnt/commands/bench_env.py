@@ -84,11 +84,7 @@ class _RawLoop:
                 ctrl[:] = self.ctrls[j][s % 64]
                 step(m, d, fs)
                 self.elapsed[j] += 1
-                z, p = qpos[iz], qpos[ip]
-                if (
-                    not (rules.z_low < z < rules.z_high and abs(p) < rules.pitch_max)
-                    or self.elapsed[j] >= self.limit
-                ):
+                if not rules.healthy(qpos[iz], qpos[ip]) or self.elapsed[j] >= self.limit:
                     reset(m, d)
                     self.elapsed[j] = 0
                     self.resets += 1
