@@ -179,3 +179,13 @@ def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
 
 def test_misspelt_recipe_key_fails_with_a_clear_message(capsys):
     assert gcnt(["train", str(ROOT / "recipes/smpenv/walker.yaml"), "optim.lrr=1"]) == 2
+
+
+def test_default_run_dirs_never_overwrite_a_run(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    recipe = load_recipe(ROOT / "recipes/quickstart.yaml")
+    first = RunDir.for_recipe(recipe)
+    assert first.path == Path("runs/quickstart/gcnt/seed0")
+    first.create(recipe)
+    recipe.run_dir = None
+    assert RunDir.for_recipe(recipe).path == Path("runs/quickstart/gcnt/seed0-1")

@@ -32,7 +32,13 @@ class RunDir:
 
     @classmethod
     def for_recipe(cls, recipe: Recipe) -> RunDir:
-        path = recipe.run_dir or f"runs/{recipe.benchmark}/{recipe.network.name}/seed{recipe.seed}"
+        """The recipe's ``run_dir``, or a fresh ``runs/<benchmark>/<method>/seed<seed>[-N]``."""
+        if recipe.run_dir:
+            return cls(recipe.run_dir)
+        base = Path("runs") / recipe.benchmark / recipe.network.name / f"seed{recipe.seed}"
+        path, n = base, 1
+        while (path / CHECKPOINT).exists() or (path / RECIPE_FILE).exists():
+            path, n = base.with_name(f"{base.name}-{n}"), n + 1
         return cls(path)
 
     # --- files
