@@ -153,12 +153,15 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
         ),
     )
     num_envs = env.batch_size[0]
+    frames_per_batch = num_envs * c.steps_per_batch
+    random_left = max(0, c.init_random_frames - env_steps)
+    random_left = -(-random_left // frames_per_batch) * frames_per_batch  # whole collector batches
     collector = Collector(
         env,
         explore,
-        frames_per_batch=num_envs * c.steps_per_batch,
+        frames_per_batch=frames_per_batch,
         total_frames=-1,
-        init_random_frames=max(0, c.init_random_frames - env_steps),
+        init_random_frames=random_left,
         device=recipe.device,
         storing_device="cpu",
         auto_register_policy_transforms=False,  # the policy needs no InitTracker
