@@ -189,3 +189,12 @@ def test_default_run_dirs_never_overwrite_a_run(tmp_path, monkeypatch):
     first.create(recipe)
     recipe.run_dir = None
     assert RunDir.for_recipe(recipe).path == Path("runs/quickstart/gcnt/seed0-1")
+
+
+def test_eval_video_is_written(tmp_path):
+    recipe = tiny(ROOT / "recipes/smpenv/hopper.yaml", tmp_path / "run", "eval.video=true")
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    videos = list((run.path / "videos").glob("step*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 1000

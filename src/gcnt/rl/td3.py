@@ -29,6 +29,7 @@ from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import SoftUpdate
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from gcnt.nn.graph_lookup import is_table_key
@@ -288,4 +289,22 @@ def _evaluate(recipe: Recipe, run: RunDir, learner: TD3Learner, logger, env_step
         for name, res in results.items():
             logger.log_scalar(f"eval_return/{name}", res["mean"], step=env_steps)
     log.info("eval at %d steps written to %s", env_steps, Path(path))
+    if video:
+        _render(recipe, run, learner, env_steps)
 
+
+@torch.no_grad()
+def _render(recipe: Recipe, run: RunDir, learner: TD3Learner, env_steps: int) -> None:
+    """A video of the deterministic policy on the first training robot (morph_id 0)."""
+    from gcnt.envs import SMPEnv
+    from gcnt.envs.render import render_rollout
+
+    robot = train_robots(recipe)[0]
+    k = learner.lookup.num_limbs  # pad like the policy's robot table
+    env = SMPEnv([robot], max_limbs=k, seed=recipe.seed, num_threads=1)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        out = render_rollout(
+            env, learner.actor, steps=300, path=run.path / "videos" / f"step{env_steps}.mp4"
+        )
+    env.close()
+    log.info("video of %s written to %s", robot.name, out)
