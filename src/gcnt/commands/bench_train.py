@@ -34,12 +34,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def bare_update_rate(recipe, n_updates: int) -> float:
+    """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it."""
     robots = train_robots(recipe)
     env = make_env(recipe, robots)
     steps = -(-recipe.replay_buffer.batch_size // env.batch_size[0]) + 1
     data = env.rollout(steps, break_when_any_done=False)
-    flat = data.select(*rb.STORED_KEYS).reshape(-1)
-    batch = flat[torch.randint(len(flat), (recipe.replay_buffer.batch_size,))].clone()
+    replay = rb.make_replay(
+        len(robots), capacity=data.numel(), batch_size=recipe.replay_buffer.batch_size
+    )
+    rb.store(replay, data)
+    mixed = recipe.collector.schedule == "mixed"
+    batch = (rb.sample_mixed(replay) if mixed else rb.sample_robot(replay, 0)).clone()
     learner = TD3Learner(recipe, env.base_env.table)
     for _ in range(3):
         learner.update(batch)
@@ -94,7 +99,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"bare TD3 update:   {bare:8.2f} updates/s ({recipe.network.name}, batch {out['batch_size']})")
+        print(
+            f"bare TD3 update:   {bare:8.2f} updates/s ({recipe.network.name}, batch {out['batch_size']})"
+        )
         print(
             f"end to end:        {e2e['env_steps_per_s']:8.2f} env steps/s, "
             f"{e2e['updates_per_s']:.2f} updates/s ({e2e['updates']} updates)"
