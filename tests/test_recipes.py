@@ -60,7 +60,9 @@ def test_bad_keys_and_values_name_the_culprit(override, message):
 def test_misspelt_key_in_a_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("env:\n  robot: [walker_7_main]\n")
-    with pytest.raises(RecipeError, match=r"bad.yaml: unknown recipe key 'env.robot'; did you mean 'robots'"):
+    with pytest.raises(
+        RecipeError, match=r"bad.yaml: unknown recipe key 'env.robot'; did you mean 'robots'"
+    ):
         load_recipe(bad)
 
 

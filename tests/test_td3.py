@@ -169,8 +169,22 @@ def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
     unseen = tmp_path / "walker_6_main.xml"
     shutil.copy(morphologies_dir() / "smpenv" / "walker_6_main.xml", unseen)
     out = tmp_path / "eval.json"
-    assert gcnt(["eval", str(run_dir), "--robots", str(unseen), "hopper_4",
-                 "--episodes", "3", "--json", str(out)]) == 0
+    assert (
+        gcnt(
+            [
+                "eval",
+                str(run_dir),
+                "--robots",
+                str(unseen),
+                "hopper_4",
+                "--episodes",
+                "3",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     results = json.loads(out.read_text())["robots"]
     assert set(results) == {"walker_6_main", "hopper_4"}
     assert results["walker_6_main"]["episodes"] == 3

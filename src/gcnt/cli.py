@@ -10,13 +10,22 @@ import sys
 
 #: sub-command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "robots": ("gcnt.commands.robots", "list robots and benchmarks; rebuild the SMPENV robot files"),
+    "robots": (
+        "gcnt.commands.robots",
+        "list robots and benchmarks; rebuild the SMPENV robot files",
+    ),
     "train": ("gcnt.commands.train", "train a policy from a recipe, or resume a run"),
     "eval": ("gcnt.commands.eval", "evaluate a run's deterministic policy per robot"),
     "params": ("gcnt.commands.params", "parameter counts of every method (paper tables 7-8)"),
     "bench-nn": ("gcnt.commands.bench_nn", "forward+backward time of GCNT vs AMORPHEUS (TD3)"),
-    "bench-learn": ("gcnt.commands.bench_learn", "learning check: a recipe beats the random policy"),
-    "bench-train": ("gcnt.commands.bench_train", "training env steps/s against the bare TD3 update"),
+    "bench-learn": (
+        "gcnt.commands.bench_learn",
+        "learning check: a recipe beats the random policy",
+    ),
+    "bench-train": (
+        "gcnt.commands.bench_train",
+        "training env steps/s against the bare TD3 update",
+    ),
     "bench-env": ("gcnt.commands.bench_env", "measure SMPEnv steps/s against a raw mj_step loop"),
 }
 

@@ -61,10 +61,9 @@ def run(args: argparse.Namespace) -> int:
     ok = True
     print(f"{'seed':>4}  {'random':>8}  {'final':>8}  {'minutes':>7}  per robot (final)")
     for r in results:
-        passed = (
-            r["final_return"] - r["random_return"] > args.min_gain
-            and r["final_return"] > args.min_ratio * max(r["random_return"], 1e-9)
-        )
+        passed = r["final_return"] - r["random_return"] > args.min_gain and r[
+            "final_return"
+        ] > args.min_ratio * max(r["random_return"], 1e-9)
         ok &= passed
         robots = ", ".join(f"{k} {v:.0f}" for k, v in r["final_per_robot"].items())
         print(

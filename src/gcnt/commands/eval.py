@@ -48,4 +48,3 @@ def run(args: argparse.Namespace) -> int:
         write_eval(Path(args.json), results, state["env_steps"])
     print(f"written: {out}")
     return 0
-

@@ -18,7 +18,6 @@ from tensordict.nn import TensorDictModuleBase
 from gcnt.envs.robot_table import STATIC_KEYS, RobotTooLargeError
 from gcnt.nn import keys as K
 
-
 _BUFFER_PREFIX = "table_"
 
 

@@ -27,9 +27,9 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import SoftUpdate
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from gcnt.nn.graph_lookup import is_table_key
@@ -219,7 +219,9 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
                     "updates_per_s": (learner.updates - updates_at_log) / (now - t_log),
                     **{k: float(np.mean(v)) for k, v in losses.items()},
                 }
-                per_robot = {f"train_return/{names[k]}": float(np.mean(v)) for k, v in returns.items()}
+                per_robot = {
+                    f"train_return/{names[k]}": float(np.mean(v)) for k, v in returns.items()
+                }
                 if per_robot:
                     row["train_return/mean"] = float(np.mean(list(per_robot.values())))
                 row.update(per_robot)
@@ -241,7 +243,11 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
         bar.close()
         collector.shutdown()
     _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
-    if logger is not None and hasattr(logger, "experiment") and hasattr(logger.experiment, "finish"):
+    if (
+        logger is not None
+        and hasattr(logger, "experiment")
+        and hasattr(logger.experiment, "finish")
+    ):
         logger.experiment.finish()
     return run
 
@@ -279,7 +285,9 @@ def _checkpoint(run: RunDir, learner, replay, env_steps: int, num_robots: int, b
     )
 
 
-def _evaluate(recipe: Recipe, run: RunDir, learner: TD3Learner, logger, env_steps: int, video: bool):
+def _evaluate(
+    recipe: Recipe, run: RunDir, learner: TD3Learner, logger, env_steps: int, video: bool
+):
     specs = recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
     if recipe.eval.episodes <= 0 or not specs:
         return
