@@ -146,7 +146,7 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
     explore = TensorDictSequential(
         learner.actor,
         AdditiveGaussianModule(
-            env.full_action_spec[ACTION],
+            env.full_action_spec[ACTION].to(recipe.device),
             sigma_init=c.exploration_noise,
             sigma_end=c.exploration_noise,
             annealing_num_steps=1,
@@ -163,7 +163,8 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
         frames_per_batch=frames_per_batch,
         total_frames=-1,
         init_random_frames=random_left,
-        device=recipe.device,
+        policy_device=recipe.device,  # networks on the recipe's device, MuJoCo on the CPU
+        env_device="cpu",
         storing_device="cpu",
         auto_register_policy_transforms=False,  # the policy needs no InitTracker
     )
