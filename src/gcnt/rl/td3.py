@@ -31,6 +31,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import SoftUpdate
 from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.recipes import Recipe
@@ -179,70 +180,74 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
     bar = tqdm(
         total=c.total_frames, initial=env_steps, unit="step", disable=not recipe.logger.progress
     )
-    try:
-        for data in collector:
-            morph = data["morph_id"]
-            stored = rb.store(replay, data)
-            env_steps += stored
-            bar.update(stored)
-            pending += np.bincount(morph.reshape(-1).numpy(), minlength=num_robots)
-            done = data["next", "done"].squeeze(-1)
-            ep_ret = data["next", "episode_reward"].squeeze(-1)
-            for robot, ret in zip(morph[done].tolist(), ep_ret[done].tolist(), strict=True):
-                returns[robot].append(ret)
-                finished[robot] = True
+    # log lines go above the progress bar instead of through it
+    with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
+        try:
+            for data in collector:
+                morph = data["morph_id"]
+                stored = rb.store(replay, data)
+                env_steps += stored
+                bar.update(stored)
+                pending += np.bincount(morph.reshape(-1).numpy(), minlength=num_robots)
+                done = data["next", "done"].squeeze(-1)
+                ep_ret = data["next", "episode_reward"].squeeze(-1)
+                for robot, ret in zip(morph[done].tolist(), ep_ret[done].tolist(), strict=True):
+                    returns[robot].append(ret)
+                    finished[robot] = True
 
-            warm = env_steps >= c.init_random_frames and all(
-                len(replay[i]) >= r.batch_size for i in range(num_robots)
-            )
-            if not warm:
-                pending[:] = 0
-            elif c.schedule == "paper" and finished.all():
-                for robot in range(num_robots):
-                    for _ in range(int(round(pending[robot] * recipe.optim.updates_per_step))):
-                        for k, v in learner.update(rb.sample_robot(replay, robot)).items():
+                warm = env_steps >= c.init_random_frames and all(
+                    len(replay[i]) >= r.batch_size for i in range(num_robots)
+                )
+                if not warm:
+                    pending[:] = 0
+                elif c.schedule == "paper" and finished.all():
+                    for robot in range(num_robots):
+                        for _ in range(int(round(pending[robot] * recipe.optim.updates_per_step))):
+                            for k, v in learner.update(rb.sample_robot(replay, robot)).items():
+                                losses[k].append(v)
+                    pending[:] = 0
+                    finished[:] = False
+                elif c.schedule == "mixed":
+                    n = int(round(pending.sum() * recipe.optim.updates_per_step / num_robots))
+                    for _ in range(n):
+                        for k, v in learner.update(rb.sample_mixed(replay)).items():
                             losses[k].append(v)
-                pending[:] = 0
-                finished[:] = False
-            elif c.schedule == "mixed":
-                n = int(round(pending.sum() * recipe.optim.updates_per_step / num_robots))
-                for _ in range(n):
-                    for k, v in learner.update(rb.sample_mixed(replay)).items():
-                        losses[k].append(v)
-                pending[:] = 0
+                    pending[:] = 0
 
-            if env_steps >= next_log or env_steps >= c.total_frames:
-                now = time.perf_counter()
-                row = {
-                    "env_steps": env_steps,
-                    "updates": learner.updates,
-                    "env_steps_per_s": (env_steps - steps_at_log) / (now - t_log),
-                    "updates_per_s": (learner.updates - updates_at_log) / (now - t_log),
-                    **{k: float(np.mean(v)) for k, v in losses.items()},
-                }
-                per_robot = {
-                    f"train_return/{names[k]}": float(np.mean(v)) for k, v in returns.items()
-                }
-                if per_robot:
-                    row["train_return/mean"] = float(np.mean(list(per_robot.values())))
-                row.update(per_robot)
-                _log_row(run, logger, row)
-                bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
-                returns.clear()
-                losses.clear()
-                t_log, steps_at_log, updates_at_log = now, env_steps, learner.updates
-                next_log = _next_multiple(env_steps, recipe.logger.log_interval)
-            if env_steps >= next_ckpt or env_steps >= c.total_frames:
-                _checkpoint(run, learner, replay, env_steps, num_robots, recipe.checkpoint_buffers)
-                next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
-            if next_eval is not None and env_steps >= next_eval and env_steps < c.total_frames:
-                _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
-                next_eval = _next_multiple(env_steps, recipe.eval.interval)
-            if env_steps >= c.total_frames:
-                break
-    finally:
-        bar.close()
-        collector.shutdown()
+                if env_steps >= next_log or env_steps >= c.total_frames:
+                    now = time.perf_counter()
+                    row = {
+                        "env_steps": env_steps,
+                        "updates": learner.updates,
+                        "env_steps_per_s": (env_steps - steps_at_log) / (now - t_log),
+                        "updates_per_s": (learner.updates - updates_at_log) / (now - t_log),
+                        **{k: float(np.mean(v)) for k, v in losses.items()},
+                    }
+                    per_robot = {
+                        f"train_return/{names[k]}": float(np.mean(v)) for k, v in returns.items()
+                    }
+                    if per_robot:
+                        row["train_return/mean"] = float(np.mean(list(per_robot.values())))
+                    row.update(per_robot)
+                    _log_row(run, logger, row)
+                    bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
+                    returns.clear()
+                    losses.clear()
+                    t_log, steps_at_log, updates_at_log = now, env_steps, learner.updates
+                    next_log = _next_multiple(env_steps, recipe.logger.log_interval)
+                if env_steps >= next_ckpt or env_steps >= c.total_frames:
+                    _checkpoint(
+                        run, learner, replay, env_steps, num_robots, recipe.checkpoint_buffers
+                    )
+                    next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
+                if next_eval is not None and env_steps >= next_eval and env_steps < c.total_frames:
+                    _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
+                    next_eval = _next_multiple(env_steps, recipe.eval.interval)
+                if env_steps >= c.total_frames:
+                    break
+        finally:
+            bar.close()
+            collector.shutdown()
     _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
     if (
         logger is not None
