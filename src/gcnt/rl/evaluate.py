@@ -19,7 +19,6 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from gcnt.morphology.benchmarks import resolve_robots
 from gcnt.recipes import Recipe
 from gcnt.rl.factories import make_env, make_net
-from gcnt.rl.td3_loss import ACTION
 
 
 @torch.no_grad()
@@ -56,7 +55,6 @@ def evaluate(
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         while bool((got < target).any()):
             td = actor(td)
-            td.set(ACTION, td.get(ACTION).clamp(-1, 1))
             td, td_next = env.step_and_maybe_reset(td)
             done = td["next", "done"].squeeze(-1)
             ep_ret = td["next", "episode_reward"].squeeze(-1)

@@ -115,6 +115,80 @@ class TD3Learner:
         self.updates = state["updates"]
 
 
+class UpdateSchedule:
+    """When to update and on what: yields the mini-batches of each update phase."""
+
+    def __init__(self, recipe: Recipe, num_robots: int):
+        self.kind = recipe.collector.schedule
+        self.updates_per_step = recipe.optim.updates_per_step
+        self.pending = np.zeros(num_robots)  # transitions stored since the last update phase
+        self.finished = np.zeros(num_robots, dtype=bool)  # robot ended an episode since then
+
+    def add(self, data: TensorDictBase) -> None:
+        morph = data["morph_id"]
+        self.pending += np.bincount(morph.reshape(-1).numpy(), minlength=len(self.pending))
+        self.finished[morph[data["next", "done"].squeeze(-1)].numpy()] = True
+
+    def batches(self, replay, warm: bool):
+        if not warm:  # random exploration, or a buffer still smaller than a batch
+            self.pending[:] = 0
+            return
+        if self.kind == "paper" and self.finished.all():
+            # each robot in turn, as many updates as it stored transitions, from its own buffer
+            for robot, n in enumerate(self.pending):
+                for _ in range(round(n * self.updates_per_step)):
+                    yield rb.sample_robot(replay, robot)
+            self.finished[:] = False
+        elif self.kind == "mixed":
+            # one padded batch holds batch_size transitions of every robot
+            for _ in range(round(self.pending.sum() * self.updates_per_step / len(self.pending))):
+                yield rb.sample_mixed(replay)
+        else:
+            return
+        self.pending[:] = 0
+
+
+class TrainStats:
+    """Episode returns per robot, losses and rates between two log lines."""
+
+    def __init__(self, names: list[str], env_steps: int, updates: int):
+        self.names = names
+        self.returns: dict[int, list[float]] = defaultdict(list)
+        self.losses: dict[str, list[float]] = defaultdict(list)
+        self.t, self.env_steps, self.updates = time.perf_counter(), env_steps, updates
+
+    def add_episodes(self, data: TensorDictBase) -> None:
+        done = data["next", "done"].squeeze(-1)
+        robots = data["morph_id"][done].tolist()
+        rets = data["next", "episode_reward"].squeeze(-1)[done].tolist()
+        for robot, ret in zip(robots, rets, strict=True):
+            self.returns[robot].append(ret)
+
+    def add_losses(self, losses: dict[str, float]) -> None:
+        for k, v in losses.items():
+            self.losses[k].append(v)
+
+    def row(self, env_steps: int, updates: int) -> dict:
+        now = time.perf_counter()
+        row = {
+            "env_steps": env_steps,
+            "updates": updates,
+            "env_steps_per_s": (env_steps - self.env_steps) / (now - self.t),
+            "updates_per_s": (updates - self.updates) / (now - self.t),
+            **{k: float(np.mean(v)) for k, v in self.losses.items()},
+        }
+        per_robot = {
+            f"train_return/{self.names[k]}": float(np.mean(v)) for k, v in self.returns.items()
+        }
+        if per_robot:
+            row["train_return/mean"] = float(np.mean(list(per_robot.values())))
+        row.update(per_robot)
+        self.returns.clear()
+        self.losses.clear()
+        self.t, self.env_steps, self.updates = now, env_steps, updates
+        return row
+
+
 def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
     """Train per ``recipe`` into ``run`` (continuing its checkpoint when ``resume``)."""
     c, r = recipe.collector, recipe.replay_buffer
@@ -171,12 +245,8 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
     )
     logger = make_logger(recipe, run)
 
-    pending = np.zeros(num_robots)  # transitions stored since the last update phase
-    finished = np.zeros(num_robots, dtype=bool)  # robot ended an episode since then
-    returns = defaultdict(list)  # robot -> returns of episodes ended since the last log
-    losses = defaultdict(list)
-    names = [rb_.name for rb_ in robots]
-    t_log, steps_at_log, updates_at_log = time.perf_counter(), env_steps, learner.updates
+    schedule = UpdateSchedule(recipe, num_robots)
+    stats = TrainStats([robot.name for robot in robots], env_steps, learner.updates)
     bar = tqdm(
         total=c.total_frames, initial=env_steps, unit="step", disable=not recipe.logger.progress
     )
@@ -184,66 +254,31 @@ def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
     with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
         try:
             for data in collector:
-                morph = data["morph_id"]
-                stored = rb.store(replay, data)
-                env_steps += stored
-                bar.update(stored)
-                pending += np.bincount(morph.reshape(-1).numpy(), minlength=num_robots)
-                done = data["next", "done"].squeeze(-1)
-                ep_ret = data["next", "episode_reward"].squeeze(-1)
-                for robot, ret in zip(morph[done].tolist(), ep_ret[done].tolist(), strict=True):
-                    returns[robot].append(ret)
-                    finished[robot] = True
-
+                env_steps += rb.store(replay, data)
+                bar.update(data.numel())
+                stats.add_episodes(data)
+                schedule.add(data)
                 warm = env_steps >= c.init_random_frames and all(
                     len(replay[i]) >= r.batch_size for i in range(num_robots)
                 )
-                if not warm:
-                    pending[:] = 0
-                elif c.schedule == "paper" and finished.all():
-                    for robot in range(num_robots):
-                        for _ in range(int(round(pending[robot] * recipe.optim.updates_per_step))):
-                            for k, v in learner.update(rb.sample_robot(replay, robot)).items():
-                                losses[k].append(v)
-                    pending[:] = 0
-                    finished[:] = False
-                elif c.schedule == "mixed":
-                    n = int(round(pending.sum() * recipe.optim.updates_per_step / num_robots))
-                    for _ in range(n):
-                        for k, v in learner.update(rb.sample_mixed(replay)).items():
-                            losses[k].append(v)
-                    pending[:] = 0
+                for batch in schedule.batches(replay, warm):
+                    stats.add_losses(learner.update(batch))
 
-                if env_steps >= next_log or env_steps >= c.total_frames:
-                    now = time.perf_counter()
-                    row = {
-                        "env_steps": env_steps,
-                        "updates": learner.updates,
-                        "env_steps_per_s": (env_steps - steps_at_log) / (now - t_log),
-                        "updates_per_s": (learner.updates - updates_at_log) / (now - t_log),
-                        **{k: float(np.mean(v)) for k, v in losses.items()},
-                    }
-                    per_robot = {
-                        f"train_return/{names[k]}": float(np.mean(v)) for k, v in returns.items()
-                    }
-                    if per_robot:
-                        row["train_return/mean"] = float(np.mean(list(per_robot.values())))
-                    row.update(per_robot)
+                last = env_steps >= c.total_frames
+                if env_steps >= next_log or last:
+                    row = stats.row(env_steps, learner.updates)
                     _log_row(run, logger, row)
                     bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
-                    returns.clear()
-                    losses.clear()
-                    t_log, steps_at_log, updates_at_log = now, env_steps, learner.updates
                     next_log = _next_multiple(env_steps, recipe.logger.log_interval)
-                if env_steps >= next_ckpt or env_steps >= c.total_frames:
+                if env_steps >= next_ckpt or last:
                     _checkpoint(
                         run, learner, replay, env_steps, num_robots, recipe.checkpoint_buffers
                     )
                     next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
-                if next_eval is not None and env_steps >= next_eval and env_steps < c.total_frames:
+                if next_eval is not None and env_steps >= next_eval and not last:
                     _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
                     next_eval = _next_multiple(env_steps, recipe.eval.interval)
-                if env_steps >= c.total_frames:
+                if last:
                     break
         finally:
             bar.close()
