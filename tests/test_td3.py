@@ -12,6 +12,7 @@ from gcnt.cli import main as gcnt
 from gcnt.morphology import morphologies_dir
 from gcnt.recipes import load_recipe
 from gcnt.rl import replay as rb
+from gcnt.rl.factories import train_robots
 from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3 import train
 from gcnt.rl.td3_loss import PerRobotTD0, masked_mean
@@ -39,17 +40,11 @@ TINY = [
 
 def tiny(path, run_dir, *extra, frames=None):
     recipe = load_recipe(path, [*TINY, f"run_dir={run_dir}", *extra])
-    n = len(rb_robots(recipe))
+    n = len(train_robots(recipe))
     # a few update phases whatever the robot count: random steps, then ~4 lockstep chunks
     recipe.collector.init_random_frames = 5 * n
     recipe.collector.total_frames = frames or 20 * n
     return recipe
-
-
-def rb_robots(recipe):
-    from gcnt.rl.factories import train_robots
-
-    return train_robots(recipe)
 
 
 def test_td_target_is_per_robot_mean_and_truncation_bootstraps():
@@ -193,6 +188,7 @@ def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
 
 def test_misspelt_recipe_key_fails_with_a_clear_message(capsys):
     assert gcnt(["train", str(ROOT / "recipes/smpenv/walker.yaml"), "optim.lrr=1"]) == 2
+    assert "unknown recipe key 'optim.lrr'; did you mean 'lr'?" in capsys.readouterr().err
 
 
 def test_default_run_dirs_never_overwrite_a_run(tmp_path, monkeypatch):

@@ -41,15 +41,11 @@ def learning_check(recipe_path: str, overrides: list[str], seed: int) -> dict:
         rows = run.read_metrics()
         evals = sorted((run.path / "eval").glob("step*.json"), key=lambda p: p.stat().st_mtime)
         final = json.loads(evals[-1].read_text())["robots"]
-    random_rows = [
-        r["train_return/mean"]
-        for r in rows
-        if r["env_steps"] <= recipe.collector.init_random_frames + recipe.logger.log_interval
-        and "train_return/mean" in r
-    ]
+    # the first logged return: episodes of the uniform-random exploration phase
+    random_return = next(r["train_return/mean"] for r in rows if "train_return/mean" in r)
     return {
         "seed": seed,
-        "random_return": float(np.mean(random_rows[:1])),
+        "random_return": random_return,
         "final_return": float(np.mean([v["mean"] for v in final.values()])),
         "final_per_robot": {k: v["mean"] for k, v in final.items()},
         "minutes": minutes,

@@ -34,12 +34,13 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt.nn.graph_lookup import is_table_key
+from gcnt.nn.keys import ACTION
 from gcnt.recipes import Recipe
 from gcnt.rl import replay as rb
 from gcnt.rl.evaluate import evaluate, write_eval
 from gcnt.rl.factories import make_env, make_net, train_robots
 from gcnt.rl.run_dir import RunDir, make_logger, seed_everything, set_rng_state
-from gcnt.rl.td3_loss import ACTION, actor_loss, critic_loss, make_td3_loss
+from gcnt.rl.td3_loss import actor_loss, critic_loss, make_td3_loss
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ class TD3Learner:
         """One critic update, plus an actor and target update every ``policy_delay`` calls."""
         o = self.recipe.optim
         batch = self.lookup(batch.to(self.recipe.device))  # restore the static graph keys
-        q_loss, meta = critic_loss(self.loss, batch)
+        q_loss = critic_loss(self.loss, batch)
         self.critic_opt.zero_grad(set_to_none=True)
         q_loss.backward()
         if o.max_grad_norm > 0:

@@ -17,9 +17,7 @@ from tensordict import TensorDictBase
 from torchrl.objectives import TD3Loss
 from torchrl.objectives.value import TD0Estimator
 
-ACTION = ("limbs", "action")
-ACTION_MASK = ("limbs", "action_mask")
-LIMB_Q = ("limbs", "state_action_value")
+from gcnt.nn.keys import ACTION, ACTION_MASK, LIMB_Q
 
 
 def limb_mask(td: TensorDictBase) -> torch.Tensor:
@@ -75,10 +73,10 @@ def make_td3_loss(
     return loss
 
 
-def critic_loss(loss: TD3Loss, batch: TensorDictBase) -> tuple[torch.Tensor, dict]:
+def critic_loss(loss: TD3Loss, batch: TensorDictBase) -> torch.Tensor:
     """Twin-critic loss averaged over motor limbs; ``batch`` must hold the static keys."""
-    per_limb, meta = loss.value_loss(batch)  # [*B, K]
-    return masked_mean(per_limb, limb_mask(batch)), meta
+    per_limb, _ = loss.value_loss(batch)  # [*B, K]
+    return masked_mean(per_limb, limb_mask(batch))
 
 
 def actor_loss(loss: TD3Loss, batch: TensorDictBase) -> torch.Tensor:

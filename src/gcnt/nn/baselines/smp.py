@@ -49,6 +49,17 @@ class _Messages(nn.Module):
         return F.normalize(m, dim=-1) if self.normalize else m
 
 
+def _flat_tree(x: Tensor, parent: Tensor, mask: Tensor):
+    """Flatten leading batch dims of per-limb ``x`` [*L, K, D], ``parent`` and ``mask`` [*L, K];
+    return them with the leading shape, the limb depths and the deepest level."""
+    x, lead = flatten_lead(x, 2)
+    parent, _ = flatten_lead(parent, 1)
+    mask, _ = flatten_lead(mask, 1)
+    depth = tree_depth(parent, mask)
+    levels = int(depth.max()) if depth.numel() else -1
+    return x, lead, parent, mask, depth, levels
+
+
 class SMPUp(_Messages):
     def __init__(self, in_dim: int, msg_dim: int, hidden: int, normalize: bool = True) -> None:
         super().__init__(normalize)
@@ -56,12 +67,8 @@ class SMPUp(_Messages):
         self.net = mlp(in_dim + msg_dim, (hidden, hidden), msg_dim)
 
     def forward(self, x: Tensor, parent: Tensor, mask: Tensor) -> Tensor:
-        x, lead = flatten_lead(x, 2)
-        parent, _ = flatten_lead(parent, 1)
-        mask, _ = flatten_lead(mask, 1)
+        x, lead, parent, mask, depth, levels = _flat_tree(x, parent, mask)
         n, k, _ = x.shape
-        depth = tree_depth(parent, mask)
-        levels = int(depth.max()) if depth.numel() else -1
         # child[n, i, j]: limb j is a real child of limb i
         child = (parent.unsqueeze(-2) == torch.arange(k, device=x.device).view(1, k, 1)) & (
             mask.unsqueeze(-2)
@@ -82,12 +89,8 @@ class SMPDown(_Messages):
         self.msg = nn.Linear(hidden, msg_dim)
 
     def forward(self, up: Tensor, parent: Tensor, mask: Tensor) -> Tensor:
-        up, lead = flatten_lead(up, 2)
-        parent, _ = flatten_lead(parent, 1)
-        mask, _ = flatten_lead(mask, 1)
+        up, lead, parent, mask, depth, levels = _flat_tree(up, parent, mask)
         n, k, _ = up.shape
-        depth = tree_depth(parent, mask)
-        levels = int(depth.max()) if depth.numel() else -1
         has_parent = (parent >= 0).unsqueeze(-1)
         idx = parent.clamp_min(0).unsqueeze(-1).expand(n, k, self.msg_dim)
         down = up.new_zeros(n, k, self.msg_dim)
