@@ -13,11 +13,12 @@ Observation and action widths are read from the built env's specs (``limb_obs_di
 
 from __future__ import annotations
 
-import difflib
 import importlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+
+from gcnt.suggest import did_you_mean
 
 #: make_env(robots, *, max_limbs, max_episode_steps, seed, num_threads, robot_ids, device,
 #:          world) -> a torchrl EnvBase of batch [len(robots)] emitting the TensorDict contract
@@ -57,7 +58,7 @@ class Benchmark:
             if not self.worlds:
                 raise ValueError(f"benchmark {self.name!r} has no worlds; leave env.world unset")
             raise ValueError(
-                f"unknown world {world!r} for benchmark {self.name!r}{_close(world, self.worlds)}"
+                f"unknown world {world!r} for benchmark {self.name!r}{did_you_mean(world, self.worlds)}"
                 f" (known: {', '.join(self.worlds)})"
             )
         return world
@@ -69,11 +70,6 @@ _BUILTIN: dict[str, str] = {
     "smpenv": "gcnt.envs.smpenv:SMPENV_BENCHMARK",
     "unimal": "gcnt.envs.unimal:UNIMAL_BENCHMARK",
 }
-
-
-def _close(name: str, known: Sequence[str]) -> str:
-    close = difflib.get_close_matches(name, list(known), n=2, cutoff=0.5)
-    return f"; did you mean {' or '.join(map(repr, close))}?" if close else ""
 
 
 def register_benchmark(benchmark: Benchmark, *, replace: bool = False) -> Benchmark:
@@ -99,7 +95,7 @@ def get_benchmark(name: str) -> Benchmark:
         _REGISTRY.setdefault(name, bench)
     if name not in _REGISTRY:
         raise ValueError(
-            f"unknown benchmark {name!r}{_close(name, benchmark_names())} "
+            f"unknown benchmark {name!r}{did_you_mean(name, benchmark_names())} "
             f"(known: {', '.join(benchmark_names())})"
         )
     return _REGISTRY[name]

@@ -42,6 +42,17 @@ class Robot:
     joint_ranges: tuple[np.ndarray, ...]  # [n_joints, 2] radians
     global_types: np.ndarray  # int64 [K]
     family_slots: np.ndarray  # int64 [K]
+    #: action slot of each joint of each limb (same order as ``joint_names``); empty: slots
+    #: 0, 1, ... in joint order. UNIMAL limbs put their x hinge in slot 0 and y hinge in slot 1.
+    joint_slots: tuple[tuple[int, ...], ...] = ()
+    #: the robot catalogue (benchmark) the robot belongs to, e.g. "smpenv" or "unimal"
+    catalogue: str = "smpenv"
+
+    def action_slots(self, limb: int) -> tuple[int, ...]:
+        """Action slot of each joint of ``limb``."""
+        if self.joint_slots:
+            return self.joint_slots[limb]
+        return tuple(range(len(self.actuator_ids[limb])))
 
     @property
     def num_limbs(self) -> int:
