@@ -1,14 +1,17 @@
 """GCNT and the baselines as chains of TensorDictModules (one stage each).
 
-Start with :func:`make_network`; the stages live in :mod:`gcnt.nn.stages`, the shared Transformer
-layer in :mod:`gcnt.nn.layers`, role outputs in :mod:`gcnt.nn.heads`.
+Start with :func:`make_network`; add a method with :func:`register_network`. The stages live in
+:mod:`gcnt.nn.stages`, the shared layers in :mod:`gcnt.nn.layers`, role outputs in
+:mod:`gcnt.nn.heads`, the one masked mean over limbs in :mod:`gcnt.nn.masking`.
 """
 
-from gcnt.nn.chain import Backbone, assemble, graph_lookup_of
+from gcnt.nn.chain import Backbone, NetIO, assemble, graph_lookup_of
 from gcnt.nn.config import (
     AmorpheusConfig,
     GCNTConfig,
+    MetaMorphConfig,
     MLPConfig,
+    ModuMorphConfig,
     NetConfig,
     SMPConfig,
     SWATConfig,
@@ -18,12 +21,16 @@ from gcnt.nn.distributions import MaskedNormal
 from gcnt.nn.graph_lookup import GraphLookup
 from gcnt.nn.heads import ROLES
 from gcnt.nn.layers import EncoderLayer, TransformerEncoder
+from gcnt.nn.masking import limb_mean
 from gcnt.nn.registry import (
     NETWORKS,
+    NetworkEntry,
     count_parameters,
     make_config,
     make_network,
     make_td3_critics,
+    register_network,
+    unregister_network,
 )
 
 __all__ = [
@@ -36,7 +43,11 @@ __all__ = [
     "GraphLookup",
     "MLPConfig",
     "MaskedNormal",
+    "MetaMorphConfig",
+    "ModuMorphConfig",
     "NetConfig",
+    "NetIO",
+    "NetworkEntry",
     "SMPConfig",
     "SWATConfig",
     "TransformerConfig",
@@ -44,7 +55,10 @@ __all__ = [
     "assemble",
     "count_parameters",
     "graph_lookup_of",
+    "limb_mean",
     "make_config",
     "make_network",
     "make_td3_critics",
+    "register_network",
+    "unregister_network",
 ]

@@ -15,8 +15,13 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from gcnt.envs.robot_table import STATIC_KEYS, RobotTooLargeError
+from gcnt.envs.robot_table import STATIC_KEYS as TABLE_KEYS
+from gcnt.envs.robot_table import RobotTooLargeError
 from gcnt.nn import keys as K
+
+#: every static key a chain may restore: the robot table's graph keys and the static limb
+#: context ``limbs/context`` [R, K, C] (UNIMAL tables; ModuMorph and GCNT+HN read it)
+STATIC_KEYS: tuple = TABLE_KEYS + tuple(k for k in (K.CONTEXT,) if k not in TABLE_KEYS)
 
 _BUFFER_PREFIX = "table_"
 
@@ -79,7 +84,7 @@ class GraphLookup(TensorDictModuleBase):
         """Swap the robot table (e.g. for zero-shot evaluation on other robots); keeps the device."""
         missing = [k for k in self.keys if k not in table.keys(True, True)]
         if missing:
-            raise KeyError(f"GraphLookup: robot table lacks keys {missing}")
+            raise KeyError(f"{self.owner}: the robot table lacks the static keys {missing}")
         if table.batch_dims != 1:
             raise ValueError(
                 f"GraphLookup: robot table must have batch [R], got {table.batch_size}"
@@ -99,8 +104,12 @@ class GraphLookup(TensorDictModuleBase):
             )
         device = self._device()
         for key in self.keys:
+            value = table.get(key).to(device)
+            old = getattr(self, _buffer_name(key), None)
+            if old is not None and old.is_floating_point() and value.is_floating_point():
+                value = value.to(old.dtype)  # keep a .double() / .half() of the module
             # non-persistent: the table is not part of the state dict
-            self.register_buffer(_buffer_name(key), table.get(key).to(device), persistent=False)
+            self.register_buffer(_buffer_name(key), value, persistent=False)
         self.robot_names = tuple(robot_names) if robot_names is not None else None
         self.num_robots = int(mask.shape[0])
         self.num_limbs = int(mask.shape[-1])

@@ -6,7 +6,7 @@ role       writes
 ========== ====================================================================================
 td3_actor  ``limbs/action`` [*, K, A] = tanh(out), zero where ``limbs/action_mask`` is False
 td3_critic ``limbs/state_action_value`` [*, K, 1] (zero on padding) and ``state_action_value``
-           [*, 1] = mean over real limbs
+           [*, 1] = mean over real limbs (:func:`gcnt.nn.masking.limb_mean`)
 ppo_actor  ``limbs/loc``, ``limbs/scale`` [*, K, A]; wrapped in a ``ProbabilisticActor`` with
            :class:`MaskedNormal` that samples ``limbs/action`` and writes ``action_log_prob`` [*]
 ppo_critic ``limbs/state_value`` [*, K, 1] and ``state_value`` [*, 1] = mean over real limbs
@@ -24,12 +24,9 @@ from torchrl.modules import ProbabilisticActor
 
 from gcnt.nn import keys as K
 from gcnt.nn.distributions import MaskedNormal
+from gcnt.nn.masking import limb_mean
 
 ROLES = ("td3_actor", "td3_critic", "ppo_actor", "ppo_critic")
-
-
-def head_out_dim(role: str, num_actions: int) -> int:
-    return num_actions if role in ("td3_actor", "ppo_actor") else 1
 
 
 class TanhAction(nn.Module):
@@ -43,25 +40,34 @@ class LimbValue(nn.Module):
     """Per-limb value (zero on padding) and its mean over the robot's real limbs."""
 
     def forward(self, out: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-        m = mask.unsqueeze(-1)
-        per_limb = torch.where(m, out, out.new_zeros(()))
-        total = per_limb.sum(-2)
-        return per_limb, total / m.sum(-2).clamp_min(1).to(out.dtype)
+        per_limb = torch.where(mask.unsqueeze(-1), out, out.new_zeros(()))
+        return per_limb, limb_mean(out, mask)
+
+
+PPO_STD_MODES = ("fixed", "learned")
+
+
+def check_ppo_std(std: str, init_std: float) -> None:
+    """A ValueError unless ``std`` is "fixed" or "learned" and ``init_std`` > 0."""
+    if std not in PPO_STD_MODES:
+        raise ValueError(f"ppo_std must be 'fixed' or 'learned', got {std!r}")
+    if not (isinstance(init_std, int | float) and init_std > 0):
+        raise ValueError(f"ppo_init_std must be > 0, got {init_std!r}")
 
 
 class GaussianParams(nn.Module):
-    """loc = head output (zero on masked slots); scale = a fixed std, or exp of a learned
-    state-independent log-std per action slot."""
+    """loc = head output (zero on masked slots); scale = a fixed std (``std="fixed"``, MetaMorph:
+    0.9, not trained), or exp of a learned state-independent log-std per action slot
+    (``std="learned"``, initialised to ``init_std``)."""
 
     def __init__(self, num_actions: int, std: str = "fixed", init_std: float = 0.9) -> None:
         super().__init__()
+        check_ppo_std(std, init_std)
         self.std_mode = std
         if std == "learned":
             self.log_std = nn.Parameter(torch.full((num_actions,), math.log(init_std)))
-        elif std == "fixed":
-            self.register_buffer("std", torch.tensor(float(init_std)), persistent=False)
         else:
-            raise ValueError(f"std must be 'fixed' or 'learned', got {std!r}")
+            self.register_buffer("std", torch.tensor(float(init_std)), persistent=False)
 
     def forward(self, out: Tensor, action_mask: Tensor) -> tuple[Tensor, Tensor]:
         loc = torch.where(action_mask, out, out.new_zeros(()))

@@ -1,10 +1,14 @@
-"""Plain torch building blocks shared by GCNT and the baselines.
+"""Plain torch building blocks shared by GCNT and the baselines (no method imports another).
 
-:class:`EncoderLayer` is the one Transformer encoder layer of the package (GCNT, AMORPHEUS and SWAT
-all use it): multi-head self-attention through ``F.scaled_dot_product_attention`` with an additive
-float mask (a learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward block, with
-post-LN (AMORPHEUS) or pre-LN (MetaMorph) residuals. Its parameter shapes match
-``torch.nn.TransformerEncoderLayer``.
+* :class:`EncoderLayer`: the Transformer encoder layer of the package (GCNT, AMORPHEUS, SWAT,
+  MetaMorph): multi-head self-attention through ``F.scaled_dot_product_attention`` with an
+  additive float mask (a learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward
+  block, with post-LN (AMORPHEUS) or pre-LN (MetaMorph) residuals. Its parameter shapes match
+  ``torch.nn.TransformerEncoderLayer``.
+* :class:`ContextAttentionLayer`: ModuMorph's "fixed attention" layer (queries and keys from a
+  static context embedding, values from the token stream).
+* :class:`HyperLinear`: a per-limb linear map whose weight and bias a hypernetwork generates from
+  the limb's context embedding (ModuMorph, GCNT+HN).
 """
 
 from __future__ import annotations
@@ -17,15 +21,30 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 
-def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, activation=nn.ReLU) -> nn.Sequential:
-    """Linear layers ``in → hidden… → out`` with ``activation`` between them (none at the end)."""
+def mlp(
+    in_dim: int,
+    hidden: Sequence[int],
+    out_dim: int,
+    activation=nn.ReLU,
+    final_activation: bool = False,
+) -> nn.Sequential:
+    """Linear layers ``in → hidden… → out`` with ``activation`` between them (and after the last
+    one if ``final_activation``)."""
     dims = [in_dim, *hidden, out_dim]
     layers: list[nn.Module] = []
     for i, (a, b) in enumerate(zip(dims[:-1], dims[1:], strict=True)):
         layers.append(nn.Linear(a, b))
-        if i < len(dims) - 2:
+        if i < len(dims) - 2 or final_activation:
             layers.append(activation())
     return nn.Sequential(*layers)
+
+
+def last_linear(net: nn.Module) -> nn.Linear:
+    """The last ``nn.Linear`` of ``net`` (for output-layer initialisation)."""
+    found = [m for m in net.modules() if isinstance(m, nn.Linear)]
+    if not found:
+        raise ValueError(f"no Linear layer in {type(net).__name__}")
+    return found[-1]
 
 
 def key_padding_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
@@ -122,6 +141,84 @@ class TransformerEncoder(nn.Module):
                 m = base
             x = layer(x, m)
         return self.norm(x) if self.norm is not None else x
+
+
+class ContextAttentionLayer(EncoderLayer):
+    """ModuMorph's "fixed attention" encoder layer (pre-LN).
+
+    Queries and keys come from this layer's own LayerNorm of a static context embedding
+    ``ctx`` [N, K, d] (the same for every layer, computed once per robot), values from the
+    LayerNorm of the token stream ``x``; the attention pattern therefore depends only on the
+    robot, not on its state. Feed-forward and residuals as a pre-LN :class:`EncoderLayer`; the
+    projection weights keep ``EncoderLayer``'s shapes (one ``qkv`` Linear, Q/K/V slices of it).
+    """
+
+    def __init__(self, d_model: int, heads: int, ff: int, dropout: float = 0.0) -> None:
+        super().__init__(d_model, heads, ff, dropout, norm_first=True)
+        self.norm_ctx = nn.LayerNorm(d_model)
+
+    def context_attention(self, x: Tensor, ctx: Tensor, attn_mask: Tensor) -> Tensor:
+        n, k, d = x.shape
+        w, b = self.qkv.weight, self.qkv.bias
+        c = self.norm_ctx(ctx)
+
+        def heads(t: Tensor) -> Tensor:
+            return t.view(n, k, self.heads, d // self.heads).transpose(1, 2)
+
+        q = heads(F.linear(c, w[:d], b[:d]))
+        kk = heads(F.linear(c, w[d : 2 * d], b[d : 2 * d]))
+        v = heads(F.linear(x, w[2 * d :], b[2 * d :]))
+        out = F.scaled_dot_product_attention(
+            q, kk, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
+        )
+        return self.proj(out.transpose(1, 2).reshape(n, k, d))
+
+    def forward(self, x: Tensor, ctx: Tensor, attn_mask: Tensor) -> Tensor:  # type: ignore[override]
+        x = x + self.drop(self.context_attention(self.norm1(x), ctx, attn_mask))
+        return x + self.drop(self.feed_forward(self.norm2(x)))
+
+
+class ContextTransformer(nn.Module):
+    """A stack of :class:`ContextAttentionLayer` (no final LayerNorm, as ModuMorph).
+
+    ``forward(x [N, K, d], ctx [N, K, d], mask [N, K] bool)``.
+    """
+
+    def __init__(self, d_model: int, layers: int, heads: int, ff: int, dropout: float = 0.0):
+        super().__init__()
+        self.layers = nn.ModuleList(
+            ContextAttentionLayer(d_model, heads, ff, dropout) for _ in range(layers)
+        )
+
+    def forward(self, x: Tensor, ctx: Tensor, mask: Tensor) -> Tensor:
+        m = key_padding_bias(mask, x.dtype)
+        for layer in self.layers:
+            x = layer(x, ctx, m)
+        return x
+
+
+class HyperLinear(nn.Module):
+    """A Linear(in → out) per limb whose weight and bias are generated from the limb's context
+    embedding ``h`` [*, K, c]: ``W = Linear(c → in·out)(h)``, ``b = Linear(c → out)(h)``.
+
+    Initialisation (ModuMorph): the generators' weights start at 0, so at first every limb gets
+    the same map; the weight generator's bias is U(±``weight_bound``) (the initial shared
+    weight), the bias generator's bias 0.
+    """
+
+    def __init__(self, ctx_dim: int, in_dim: int, out_dim: int, weight_bound: float) -> None:
+        super().__init__()
+        self.in_dim, self.out_dim = in_dim, out_dim
+        self.weight = nn.Linear(ctx_dim, in_dim * out_dim)
+        self.bias = nn.Linear(ctx_dim, out_dim)
+        nn.init.zeros_(self.weight.weight)
+        nn.init.uniform_(self.weight.bias, -weight_bound, weight_bound)
+        nn.init.zeros_(self.bias.weight)
+        nn.init.zeros_(self.bias.bias)
+
+    def forward(self, x: Tensor, h: Tensor) -> Tensor:
+        w = self.weight(h).unflatten(-1, (self.in_dim, self.out_dim))
+        return torch.einsum("...i,...io->...o", x, w) + self.bias(h)
 
 
 def flatten_lead(x: Tensor, keep: int) -> tuple[Tensor, torch.Size]:

@@ -1,19 +1,29 @@
-"""Build any method's network for any role by name.
+"""Build any method's network for any role by name; register new methods.
 
 >>> actor = make_network("gcnt", "td3_actor", table=table, obs_dim=19, num_actions=1)
 >>> critics = make_td3_critics("gcnt", table=table, obs_dim=19, num_actions=1)  # twin, independent
->>> loss = TD3Loss(actor, critics, num_qvalue_nets=2, bounds=(-1, 1), deactivate_vmap=True)
+>>> pi = make_network("modumorph", "ppo_actor", table=table, obs_dim=52, num_actions=2,
+...                   preset="unimal", hfield_dim=1410, ppo_std="fixed", ppo_init_std=0.9)
 
-Names: ``gcnt``, ``gcnt_no_gcn``, ``gcnt_no_wl``, ``gcnt_no_dist`` (ablations; the same as
-``gcnt`` with ``use_gcn=False`` etc.), ``amorpheus``, ``swat``, ``smp``, ``mlp``.
-Roles: ``td3_actor``, ``td3_critic``, ``ppo_actor``, ``ppo_critic`` (keys in :mod:`gcnt.nn.heads`).
-Overrides are fields of the method's config dataclass (:mod:`gcnt.nn.config`); a preset is
-"smpenv" (paper appendix table 1) or "unimal" (table 3).
+Names: ``gcnt`` and its ablations ``gcnt_no_gcn``, ``gcnt_no_wl``, ``gcnt_no_dist`` (the same as
+``gcnt`` with ``use_gcn=False`` etc.), ``gcnt_hn`` (GCNT+HN), ``amorpheus``, ``swat``, ``smp``,
+``metamorph``, ``metamorph_star`` (MetaMorph*), ``modumorph``, ``sr`` (= ``mlp``).
+Roles: ``td3_actor``, ``td3_critic``, ``ppo_actor``, ``ppo_critic`` (keys in :mod:`gcnt.nn.heads`);
+every method builds for every role. Overrides are fields of the method's config dataclass
+(:mod:`gcnt.nn.config`); a preset is "smpenv" or "unimal" (the paper's sizes per benchmark).
+
+A new method is one :func:`register_network` call: a config dataclass (a :class:`NetConfig`
+subclass) and a builder ``build(cfg, io, table) -> Backbone`` that returns the stages from
+``limbs/input`` to ``limbs/out`` (decoder included; ``io`` is a :class:`NetIO` with the input,
+output and height-map widths; ``table`` is the robot table for widths such as WL or context)::
+
+    register_network("toy", ToyConfig, build_toy)
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from tensordict import TensorDictBase
@@ -21,57 +31,111 @@ from tensordict.nn import TensorDictModuleBase
 
 from gcnt.envs.robot_table import robot_table
 from gcnt.morphology import Robot
-from gcnt.nn import keys as K
-from gcnt.nn.baselines import amorpheus_backbone, mlp_backbone, smp_backbone, swat_backbone
-from gcnt.nn.chain import Backbone, assemble
+from gcnt.nn.baselines import (
+    amorpheus_backbone,
+    metamorph_backbone,
+    mlp_backbone,
+    modumorph_backbone,
+    smp_backbone,
+    swat_backbone,
+)
+from gcnt.nn.chain import Backbone, NetIO, assemble, io_for
 from gcnt.nn.config import (
     AmorpheusConfig,
     GCNTConfig,
+    MetaMorphConfig,
     MLPConfig,
+    ModuMorphConfig,
     NetConfig,
     SMPConfig,
     SWATConfig,
     unknown_name_error,
 )
 from gcnt.nn.gcnt import gcnt_backbone
-from gcnt.nn.heads import ROLES, head_out_dim
+from gcnt.nn.heads import ROLES, check_ppo_std
 
-#: name -> (config class, fixed overrides)
-NETWORKS: dict[str, tuple[type[NetConfig], dict[str, Any]]] = {
-    "gcnt": (GCNTConfig, {}),
-    "gcnt_no_gcn": (GCNTConfig, {"use_gcn": False}),
-    "gcnt_no_wl": (GCNTConfig, {"use_wl": False}),
-    "gcnt_no_dist": (GCNTConfig, {"use_dist_bias": False}),
-    "amorpheus": (AmorpheusConfig, {}),
-    "swat": (SWATConfig, {}),
-    "smp": (SMPConfig, {}),
-    "mlp": (MLPConfig, {}),
-}
+#: build(cfg, io, table) -> Backbone
+Builder = Callable[[Any, NetIO, TensorDictBase], Backbone]
+
+
+@dataclass(frozen=True)
+class NetworkEntry:
+    """One registered method: its config class, its builder, and config fields it fixes."""
+
+    config: type[NetConfig]
+    build: Builder
+    #: config fields this name fixes (an ablation is an entry with a switch off)
+    fixed: Mapping[str, Any] = field(default_factory=dict)
+    description: str = ""
+
+
+NETWORKS: dict[str, NetworkEntry] = {}
+
+
+def register_network(
+    name: str,
+    config: type[NetConfig],
+    build: Builder,
+    *,
+    fixed: Mapping[str, Any] | None = None,
+    description: str = "",
+    replace: bool = False,
+) -> NetworkEntry:
+    """Make method ``name`` available to :func:`make_network` (``replace`` to redefine one).
+
+    ``config`` is a :class:`NetConfig` subclass (its presets give the sizes); ``build(cfg, io,
+    table)`` returns the method's :class:`Backbone`; ``fixed`` are config fields the name fixes.
+    """
+    if not (isinstance(config, type) and issubclass(config, NetConfig)):
+        raise TypeError(f"network {name!r}: config must be a NetConfig subclass, got {config!r}")
+    if not callable(build):
+        raise TypeError(f"network {name!r}: build must be callable, got {build!r}")
+    if name in NETWORKS and not replace:
+        raise ValueError(f"network {name!r} is already registered (pass replace=True)")
+    fixed = dict(fixed or {})
+    config.check_overrides(fixed)
+    entry = NetworkEntry(config, build, fixed, description)
+    NETWORKS[name] = entry
+    return entry
+
+
+def unregister_network(name: str) -> None:
+    """Remove method ``name`` (for tests that register a toy method)."""
+    if name not in NETWORKS:
+        raise unknown_name_error("network", name, list(NETWORKS))
+    del NETWORKS[name]
+
+
+register_network("gcnt", GCNTConfig, gcnt_backbone, description="GCNT")
+register_network("gcnt_no_gcn", GCNTConfig, gcnt_backbone, fixed={"use_gcn": False})
+register_network("gcnt_no_wl", GCNTConfig, gcnt_backbone, fixed={"use_wl": False})
+register_network("gcnt_no_dist", GCNTConfig, gcnt_backbone, fixed={"use_dist_bias": False})
+register_network("gcnt_hn", GCNTConfig, gcnt_backbone, fixed={"hypernet": True}, description="GCNT+HN")
+register_network("amorpheus", AmorpheusConfig, amorpheus_backbone, description="AMORPHEUS")
+register_network("swat", SWATConfig, swat_backbone, description="SWAT")
+register_network("smp", SMPConfig, smp_backbone, description="SMP")
+register_network("metamorph", MetaMorphConfig, metamorph_backbone, description="MetaMorph")
+register_network(
+    "metamorph_star",
+    MetaMorphConfig,
+    metamorph_backbone,
+    fixed={"position_embedding": False, "embed_dropout": 0.0},
+    description="MetaMorph*",
+)
+register_network("modumorph", ModuMorphConfig, modumorph_backbone, description="ModuMorph")
+register_network("sr", MLPConfig, mlp_backbone, description="SR (one MLP per robot)")
+register_network("mlp", MLPConfig, mlp_backbone, description="SR (one MLP per robot)")
 
 
 def make_config(name: str, preset: str = "smpenv", **overrides: Any) -> NetConfig:
     """The config of method ``name`` at ``preset`` sizes with ``overrides``."""
     if name not in NETWORKS:
         raise unknown_name_error("network", name, list(NETWORKS))
-    cls, fixed = NETWORKS[name]
-    for key, value in fixed.items():
+    entry = NETWORKS[name]
+    for key, value in entry.fixed.items():
         if key in overrides and overrides[key] != value:
             raise ValueError(f"network {name!r} fixes {key}={value}; got {key}={overrides[key]}")
-    return cls.preset(preset, **{**overrides, **fixed})
-
-
-def _backbone(name: str, cfg: NetConfig, in_dim: int, out_dim: int, table) -> Backbone:
-    if isinstance(cfg, GCNTConfig):
-        return gcnt_backbone(cfg, in_dim, out_dim, table.get(K.WL).shape[-1])
-    if isinstance(cfg, SWATConfig):
-        return swat_backbone(cfg, in_dim, out_dim)
-    if isinstance(cfg, AmorpheusConfig):
-        return amorpheus_backbone(cfg, in_dim, out_dim)
-    if isinstance(cfg, SMPConfig):
-        return smp_backbone(cfg, in_dim, out_dim)
-    if isinstance(cfg, MLPConfig):
-        return mlp_backbone(cfg, in_dim, out_dim, table.get(K.MASK).shape[-1])
-    raise ValueError(f"no backbone for {name!r}")  # pragma: no cover
+    return entry.config.preset(preset, **{**overrides, **entry.fixed})
 
 
 def make_network(
@@ -85,6 +149,9 @@ def make_network(
     keep_intermediates: bool = False,
     robot_names: Sequence[str] | None = None,
     pad_limbs: int | None = None,
+    hfield_dim: int = 0,
+    ppo_std: str = "fixed",
+    ppo_init_std: float = 0.9,
     **overrides: Any,
 ) -> TensorDictModuleBase:
     """Build method ``name`` for ``role`` over the robots of ``table``.
@@ -93,33 +160,44 @@ def make_network(
         name: a key of :data:`NETWORKS`.
         role: one of "td3_actor", "td3_critic", "ppo_actor", "ppo_critic".
         table: the padded robot table (``robot_table(...)``), or a list of Robots (then the table
-            is built here, padded to ``pad_limbs`` (default: the largest robot), and the robots' names are kept for
-            error messages).
+            is built here, padded to ``pad_limbs`` (default: the largest robot), and the robots'
+            names are kept for error messages).
         obs_dim: F, the per-limb observation width; num_actions: A, action slots per limb.
         preset: "smpenv" or "unimal" sizes.
         keep_intermediates: keep intermediate keys (embeddings, GCN output, ...) in the output.
-        **overrides: config fields (e.g. ``layers=1``, ``use_gcn=False``, ``ppo_std="learned"``).
+        hfield_dim: width of the root key ``hfield`` (UNIMAL MT / Obstacles: 1410), or 0 for no
+            height map. It is encoded by an MLP H → 64 → 64 and joined to every limb's features
+            before the decoder, which becomes [features ‖ 64] → 64 → out.
+        ppo_std, ppo_init_std: the PPO actor's Gaussian std: "fixed" (not trained) at
+            ``ppo_init_std``, or "learned" (a state-independent log-std per action slot starting
+            at ``ppo_init_std``). Ignored by the other roles.
+        **overrides: config fields (e.g. ``layers=1``, ``use_gcn=False``).
 
     Returns a ``TensorDictSequential`` starting with a ``GraphLookup`` (named stages:
     ``chain["lookup"]``, ``chain["gcn"]``...), or for ``ppo_actor`` a ``ProbabilisticActor``
-    around one. Its in_keys are ``morph_id``, ``limbs/obs`` (+ ``limbs/action`` for td3_critic).
+    around one. Its in_keys are ``morph_id``, ``limbs/obs`` (+ ``limbs/action`` for td3_critic,
+    + ``hfield`` if ``hfield_dim``).
     """
     if role not in ROLES:
         raise unknown_name_error("role", role, ROLES)
+    if not (isinstance(hfield_dim, int) and hfield_dim >= 0):
+        raise ValueError(f"hfield_dim must be an int >= 0, got {hfield_dim!r}")
+    check_ppo_std(ppo_std, ppo_init_std)
     cfg = make_config(name, preset, **overrides)
     if not isinstance(table, TensorDictBase):
         robots = list(table)
         robot_names = robot_names or [r.name for r in robots]
         table = robot_table(robots, pad_limbs, num_actions)
-    in_dim = obs_dim + (num_actions if role == "td3_critic" else 0)
-    backbone = _backbone(name, cfg, in_dim, head_out_dim(role, num_actions), table)
+    io = io_for(role, obs_dim, num_actions, hfield_dim)
+    backbone = NETWORKS[name].build(cfg, io, table)
     return assemble(
         backbone,
         role,
         table,
         num_actions,
-        ppo_std=cfg.ppo_std,
-        ppo_init_std=cfg.ppo_init_std,
+        hfield_dim=hfield_dim,
+        ppo_std=ppo_std,
+        ppo_init_std=ppo_init_std,
         robot_names=robot_names,
         keep_intermediates=keep_intermediates,
     )
@@ -136,4 +214,5 @@ def make_td3_critics(name: str, *, num: int = 2, **kwargs: Any) -> list[TensorDi
 
 
 def count_parameters(module) -> int:
+    """Trainable and frozen parameters of ``module`` (the robot table is buffers: not counted)."""
     return sum(p.numel() for p in module.parameters())

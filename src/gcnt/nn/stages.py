@@ -17,7 +17,20 @@ from torch import Tensor, nn
 
 from gcnt.morphology import DIST_PAD
 from gcnt.nn import keys as K
-from gcnt.nn.layers import TransformerEncoder, flatten_lead, mlp, scaled
+from gcnt.nn.layers import (
+    ContextTransformer,
+    HyperLinear,
+    TransformerEncoder,
+    flatten_lead,
+    last_linear,
+    mlp,
+    scaled,
+)
+
+#: the height map enters every method the same way: MLP H → 64 → 64 (ReLU) of the root key
+#: ``hfield``, joined to each limb's features; the decoder then has one hidden layer of 64
+HFIELD_WIDTH = 64
+DECODER_HIDDEN = 64
 
 # --------------------------------------------------------------------------------------- input
 
@@ -74,10 +87,10 @@ def limb_encoder_stage(
 # ------------------------------------------------------------------------------------- GCN
 
 
-def normalized_adjacency(adj: Tensor, mask: Tensor) -> Tensor:
+def normalized_adjacency(adj: Tensor, mask: Tensor, dtype: torch.dtype = torch.float32) -> Tensor:
     """Â = D̃^-½ (A + I) D̃^-½ over real limbs only (padded rows and columns are zero)."""
-    m = mask.to(torch.float32)
-    a = adj.to(torch.float32) * m.unsqueeze(-1) * m.unsqueeze(-2)
+    m = mask.to(dtype)
+    a = adj.to(dtype) * m.unsqueeze(-1) * m.unsqueeze(-2)
     a = a + torch.diag_embed(m)
     deg = a.sum(-1)
     dinv = torch.where(deg > 0, deg.clamp_min(1e-12).rsqrt(), torch.zeros_like(deg))
@@ -111,7 +124,7 @@ class LimbGCN(nn.Module):
         if types.device.type == "cpu" and types.numel() and int(types.max()) >= self.num_types:
             raise ValueError(f"limb type id {int(types.max())} >= num_limb_types {self.num_types}")
         h = self.embed(F.one_hot(types.clamp_min(0), self.num_types).to(self.embed.weight.dtype))
-        a_hat = normalized_adjacency(adj, mask).to(h.dtype)
+        a_hat = normalized_adjacency(adj, mask, h.dtype)
         for layer in self.layers:
             h = layer(h, a_hat)
         return torch.where(mask.unsqueeze(-1), h, h.new_zeros(()))
@@ -188,6 +201,7 @@ class RelationalBias(nn.Module):
         self.lin = nn.Linear(3, heads)
 
     def forward(self, ppr: Tensor, lap: Tensor, dist: Tensor, mask: Tensor) -> Tensor:
+        ppr, lap = ppr.to(self.lin.weight.dtype), lap.to(self.lin.weight.dtype)
         n = mask.sum(-1).clamp_min(1).to(ppr.dtype)[..., None, None]
         pair = mask.unsqueeze(-1) & mask.unsqueeze(-2) & (dist != DIST_PAD)
         hop = torch.where(pair, dist.to(ppr.dtype) / n, ppr.new_zeros(()))
@@ -222,6 +236,21 @@ class LimbTransformer(nn.Module):
         return self.encoder(x, mask, bias).reshape(*lead, *x.shape[1:])
 
 
+def encoder_of(cfg, bias_mode: str = "per_layer") -> TransformerEncoder:
+    """The shared Transformer encoder at the sizes of a Transformer config (d_model, layers,
+    heads, ff, dropout, norm_first, final_norm)."""
+    return TransformerEncoder(
+        cfg.d_model,
+        cfg.layers,
+        cfg.heads,
+        cfg.ff,
+        cfg.dropout,
+        norm_first=cfg.norm_first,
+        final_norm=cfg.final_norm,
+        bias_mode=bias_mode,
+    )
+
+
 def transformer_stage(
     encoder: TransformerEncoder, in_key=K.HIDDEN, with_bias: bool = False
 ) -> TensorDictModule:
@@ -229,20 +258,204 @@ def transformer_stage(
     return TensorDictModule(LimbTransformer(encoder, with_bias), in_keys, [K.FEATURES])
 
 
+class ContextLimbTransformer(nn.Module):
+    """Runs a :class:`ContextTransformer` (ModuMorph's fixed attention) on [*, K, d] tokens with
+    the context embedding [*, K, d] and the limb mask; flattens the leading dims."""
+
+    def __init__(self, encoder: ContextTransformer) -> None:
+        super().__init__()
+        self.encoder = encoder
+
+    def forward(self, x: Tensor, ctx: Tensor, mask: Tensor) -> Tensor:
+        x, lead = flatten_lead(x, 2)
+        ctx, _ = flatten_lead(ctx, 2)
+        mask, _ = flatten_lead(mask, 1)
+        return self.encoder(x, ctx.to(x.dtype), mask).reshape(*lead, *x.shape[1:])
+
+
+def context_transformer_stage(encoder: ContextTransformer, in_key=K.EMBED) -> TensorDictModule:
+    return TensorDictModule(
+        ContextLimbTransformer(encoder), [in_key, K.ATTN_CONTEXT, K.MASK], [K.FEATURES]
+    )
+
+
+# ------------------------------------------------------------------- position embedding
+
+
+class PositionEmbedding(nn.Module):
+    """A learned embedding of each limb's slot index (its depth-first pre-order position), added
+    to the token, then dropout (MetaMorph). ``max_limbs`` rows, initialised N(0, 1); slots past
+    ``max_limbs`` (padding only: the chain rejects larger robots) get no embedding."""
+
+    def __init__(self, max_limbs: int, d_model: int, dropout: float = 0.0) -> None:
+        super().__init__()
+        self.max_limbs = max_limbs
+        self.pe = nn.Parameter(torch.randn(max_limbs, d_model))
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, embed: Tensor) -> Tensor:
+        k = embed.shape[-2]
+        pe = self.pe[:k].to(embed.dtype)
+        if k > self.max_limbs:
+            pe = torch.cat([pe, pe.new_zeros(k - self.max_limbs, pe.shape[-1])])
+        return self.drop(embed + pe)
+
+
+def position_embedding_stage(max_limbs: int, d_model: int, dropout: float) -> TensorDictModule:
+    return TensorDictModule(PositionEmbedding(max_limbs, d_model, dropout), [K.EMBED], [K.HIDDEN])
+
+
+# ------------------------------------------------------------------- context, hypernetwork
+
+
+def context_width(table, owner: str) -> int:
+    """C, the width of ``limbs/context`` in the robot table; a ValueError if it has none."""
+    if K.CONTEXT not in table.keys(True):
+        raise ValueError(
+            f"{owner} reads the static limb context ('limbs', 'context') from the robot table, "
+            "which has none (UNIMAL robot tables carry it)"
+        )
+    return int(table.get(K.CONTEXT).shape[-1])
+
+
+class ContextMLP(nn.Module):
+    """An MLP over each limb's static context ``limbs/context`` [*, K, C]."""
+
+    def __init__(self, ctx_dim: int, widths: Sequence[int], final_activation: bool) -> None:
+        super().__init__()
+        self.net = mlp(ctx_dim, widths[:-1], widths[-1], final_activation=final_activation)
+
+    def forward(self, ctx: Tensor) -> Tensor:
+        return self.net(ctx.to(last_linear(self.net).weight.dtype))
+
+
+def context_stage(
+    ctx_dim: int, widths: Sequence[int], out_key, final_activation: bool
+) -> TensorDictModule:
+    return TensorDictModule(ContextMLP(ctx_dim, widths, final_activation), [K.CONTEXT], [out_key])
+
+
+class HyperEncoder(nn.Module):
+    """The limb-observation embedding generated per limb from its context embedding:
+    ``HyperLinear(F → d)(x, h)``, scaled by √d (ModuMorph; embedding weights start U(±0.1))."""
+
+    def __init__(self, hn_dim: int, in_dim: int, d_model: int, scale: bool = True) -> None:
+        super().__init__()
+        self.d_model, self.scale = d_model, scale
+        self.lin = HyperLinear(hn_dim, in_dim, d_model, weight_bound=0.1)
+
+    def forward(self, x: Tensor, h: Tensor) -> Tensor:
+        return scaled(self.lin(x.to(h.dtype), h), self.d_model, self.scale)
+
+
+def hyper_encoder_stage(hn_dim: int, in_dim: int, d_model: int, scale: bool) -> TensorDictModule:
+    return TensorDictModule(
+        HyperEncoder(hn_dim, in_dim, d_model, scale), [K.INPUT, K.HN_CONTEXT], [K.EMBED]
+    )
+
+
+# ------------------------------------------------------------------------ height map
+
+
+class HFieldEncoder(nn.Module):
+    """The height map's MLP ``H → 64 → 64`` (ReLU after both), one vector per sample."""
+
+    def __init__(self, hfield_dim: int, width: int = HFIELD_WIDTH) -> None:
+        super().__init__()
+        self.net = mlp(hfield_dim, (width,), width, final_activation=True)
+
+    def forward(self, hfield: Tensor) -> Tensor:
+        return self.net(hfield.to(last_linear(self.net).weight.dtype))
+
+
+def hfield_stage(hfield_dim: int) -> TensorDictModule:
+    return TensorDictModule(HFieldEncoder(hfield_dim), [K.HFIELD], [K.HFIELD_EMBED])
+
+
 # ------------------------------------------------------------------------ per-limb head
 
 
+def _decoder_input(features: Tensor, parts: Sequence[Tensor], raw: bool, hfield: bool) -> Tensor:
+    feats = [features]
+    it = iter(parts)
+    if raw:
+        feats.append(next(it).to(features.dtype))
+    if hfield:
+        h = next(it).to(features.dtype)  # [*, W]: the same for every limb of a sample
+        feats.append(h.unsqueeze(-2).expand(*features.shape[:-1], h.shape[-1]))
+    return torch.cat(feats, -1) if len(feats) > 1 else features
+
+
 class LimbHead(nn.Module):
-    """The decoder shared by every method: Linear(features ‖ raw limb input → out) per limb
-    (the raw input residual is AMORPHEUS's; GCNT keeps it)."""
+    """The per-limb decoder shared by every method: [features ‖ raw limb input (AMORPHEUS's
+    residual, if ``raw_dim``) ‖ encoded height map (if ``hfield_width``)] → hidden… → out, the
+    same MLP for every limb. ``hidden`` is () without a height map and (64,) with one."""
 
-    def __init__(self, feat_dim: int, in_dim: int, out_dim: int) -> None:
+    def __init__(
+        self,
+        feat_dim: int,
+        out_dim: int,
+        *,
+        raw_dim: int = 0,
+        hfield_width: int = 0,
+        hidden: Sequence[int] = (),
+    ) -> None:
         super().__init__()
-        self.lin = nn.Linear(feat_dim + in_dim, out_dim)
+        self.raw, self.hfield = raw_dim > 0, hfield_width > 0
+        self.net = mlp(feat_dim + raw_dim + hfield_width, hidden, out_dim)
 
-    def forward(self, features: Tensor, x: Tensor) -> Tensor:
-        return self.lin(torch.cat([features, x.to(features.dtype)], -1))
+    def forward(self, features: Tensor, *parts: Tensor) -> Tensor:
+        return self.net(_decoder_input(features, parts, self.raw, self.hfield))
 
 
-def limb_head_stage(feat_dim: int, in_dim: int, out_dim: int) -> TensorDictModule:
-    return TensorDictModule(LimbHead(feat_dim, in_dim, out_dim), [K.FEATURES, K.INPUT], [K.OUT])
+class HyperHead(nn.Module):
+    """The decoder with per-limb weights generated from the limb's context embedding (ModuMorph):
+    one :class:`HyperLinear` per layer (ReLU between), weights starting U(±0.01). Same inputs as
+    :class:`LimbHead`, after the context embedding."""
+
+    def __init__(
+        self,
+        hn_dim: int,
+        feat_dim: int,
+        out_dim: int,
+        *,
+        raw_dim: int = 0,
+        hfield_width: int = 0,
+        hidden: Sequence[int] = (),
+    ) -> None:
+        super().__init__()
+        self.raw, self.hfield = raw_dim > 0, hfield_width > 0
+        dims = [feat_dim + raw_dim + hfield_width, *hidden, out_dim]
+        self.layers = nn.ModuleList(
+            HyperLinear(hn_dim, a, b, weight_bound=0.01)
+            for a, b in zip(dims[:-1], dims[1:], strict=True)
+        )
+
+    def forward(self, h: Tensor, features: Tensor, *parts: Tensor) -> Tensor:
+        x = _decoder_input(features, parts, self.raw, self.hfield)
+        for i, layer in enumerate(self.layers):
+            x = layer(x, h)
+            if i < len(self.layers) - 1:
+                x = F.relu(x)
+        return x
+
+
+def limb_head_stage(
+    feat_dim: int,
+    out_dim: int,
+    *,
+    raw_dim: int = 0,
+    hfield_width: int = 0,
+    hyper_dim: int = 0,
+) -> TensorDictModule:
+    """The decoder stage ``limbs/features`` (‖ ``limbs/input`` if ``raw_dim``) (‖ ``hfield_embed``
+    if ``hfield_width``) → ``limbs/out``; per-limb generated weights if ``hyper_dim`` (the
+    hypernetwork context width, read from ``limbs/hn_context``)."""
+    hidden = (DECODER_HIDDEN,) if hfield_width else ()
+    in_keys = [K.FEATURES] + ([K.INPUT] if raw_dim else []) + ([K.HFIELD_EMBED] if hfield_width else [])
+    kw = dict(raw_dim=raw_dim, hfield_width=hfield_width, hidden=hidden)
+    if hyper_dim:
+        return TensorDictModule(
+            HyperHead(hyper_dim, feat_dim, out_dim, **kw), [K.HN_CONTEXT, *in_keys], [K.OUT]
+        )
+    return TensorDictModule(LimbHead(feat_dim, out_dim, **kw), in_keys, [K.OUT])

@@ -81,12 +81,8 @@ def random_robots(sizes: Sequence[int], seed: int = 0) -> list[Robot]:
 
 
 def smpenv_like_robots() -> list[Robot]:
-    """The 25 CWHH++ training robots if the SMPENV files are installed; otherwise 25 random trees
-    with the same limb counts."""
-    try:
-        from gcnt.morphology.benchmarks import resolve_robots
+    """The CWHH++ training robots (read from the robot files shipped with gcnt; a missing or
+    broken file is an error, never silently replaced)."""
+    from gcnt.morphology.benchmarks import resolve_robots
 
-        return resolve_robots(["CWHH++:train"])
-    except Exception:  # noqa: BLE001 - fall back to synthetic robots of the same sizes
-        sizes = [2, 4, 5, 7, 2, 2, 3, 3, 4, 4, 4, 4, 5, 5, 6, 7, 7, 7, 7, 7, 8, 9, 3, 4, 5]
-        return random_robots(sizes)
+    return resolve_robots(["CWHH++:train"])

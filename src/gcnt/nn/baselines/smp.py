@@ -3,7 +3,8 @@
 Bottom-up: every limb's MLP maps [its input ‖ sum of its children's up-messages] to an
 up-message (``msg_dim``). Top-down: every limb's MLP maps [its up-message ‖ its parent's
 down-message] to a hidden vector (``hidden``), from which a Linear makes the down-message it sends
-to its children; the shared head reads [hidden ‖ raw limb input]. Messages are L2-normalised.
+to its children; the shared head reads [hidden ‖ raw limb input (‖ height-map embedding)].
+Messages are L2-normalised.
 
 Vectorised over the batch by tree depth: each pass runs one step per depth level (the deepest
 level in the batch bounds the loop), updating only the limbs at that level; no loop over samples.
@@ -17,11 +18,12 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
 from gcnt.nn import keys as K
-from gcnt.nn.chain import Backbone
+from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SMPConfig
 from gcnt.nn.layers import flatten_lead, mlp
 from gcnt.nn.stages import limb_head_stage
@@ -104,13 +106,14 @@ class SMPDown(_Messages):
         return feats.reshape(*lead, k, self.hidden)
 
 
-def smp_backbone(cfg: SMPConfig, in_dim: int, out_dim: int) -> Backbone:
+def smp_backbone(cfg: SMPConfig, io: NetIO, table: TensorDictBase) -> Backbone:
+    head = limb_head_stage(cfg.hidden, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width)
     return Backbone(
         [
             (
                 "up",
                 TensorDictModule(
-                    SMPUp(in_dim, cfg.msg_dim, cfg.hidden, cfg.normalize_messages),
+                    SMPUp(io.in_dim, cfg.msg_dim, cfg.hidden, cfg.normalize_messages),
                     [K.INPUT, K.PARENT, K.MASK],
                     [MSG_UP],
                 ),
@@ -123,7 +126,7 @@ def smp_backbone(cfg: SMPConfig, in_dim: int, out_dim: int) -> Backbone:
                     [K.FEATURES],
                 ),
             ),
-            ("head", limb_head_stage(cfg.hidden, in_dim, out_dim)),
+            ("head", head),
         ],
         static_keys=(K.PARENT,),
         name="SMP",

@@ -12,14 +12,15 @@
 from __future__ import annotations
 
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
 from gcnt.nn import keys as K
-from gcnt.nn.chain import Backbone
+from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SWATConfig
-from gcnt.nn.gcnt import encoder_of
 from gcnt.nn.stages import (
+    encoder_of,
     limb_encoder_stage,
     limb_head_stage,
     relational_bias_stage,
@@ -47,10 +48,11 @@ class TraversalEmbedding(nn.Module):
         return embed + pe.to(embed.dtype)
 
 
-def swat_backbone(cfg: SWATConfig, in_dim: int, out_dim: int) -> Backbone:
+def swat_backbone(cfg: SWATConfig, io: NetIO, table: TensorDictBase) -> Backbone:
+    head = limb_head_stage(cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width)
     return Backbone(
         [
-            ("encoder", limb_encoder_stage(in_dim, cfg.d_model, (), cfg.input_scale)),
+            ("encoder", limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)),
             (
                 "traversal",
                 TensorDictModule(
@@ -61,7 +63,7 @@ def swat_backbone(cfg: SWATConfig, in_dim: int, out_dim: int) -> Backbone:
             ),
             ("relational_bias", relational_bias_stage(cfg.heads)),
             ("transformer", transformer_stage(encoder_of(cfg, "first"), K.HIDDEN, with_bias=True)),
-            ("head", limb_head_stage(cfg.d_model, in_dim, out_dim)),
+            ("head", head),
         ],
         static_keys=(K.TRAVERSAL, K.PPR, K.LAPLACIAN, K.DIST),
         max_limbs=cfg.max_limbs,
