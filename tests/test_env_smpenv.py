@@ -365,7 +365,7 @@ def test_error_in_a_physics_thread_is_raised_not_hung():
 def test_error_in_a_helper_thread_reaches_the_caller():
     import threading
 
-    from gcnt.envs.smpenv import _StepQueue
+    from gcnt.envs.base import _StepQueue
 
     env = SMPEnv(robots(*MIXED), seed=0, num_threads=2)
     env.reset()

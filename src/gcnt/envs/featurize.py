@@ -1,6 +1,6 @@
-"""The 19-d SMPENV limb observation, vectorised over sub-envs and limbs.
+"""SMPENV's featuriser: the 19-d limb observation, vectorised over sub-envs and limbs.
 
-Per limb (bodies in depth-first pre-order, torso first; see ``/work/shared/spec/smpenv.md``):
+Per limb (bodies in depth-first pre-order, torso first):
 
 ======= ====================================================================================
 0:3     position of the body frame in world, x made relative to the torso's x
@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from gcnt.envs.base import Featurizer
 from gcnt.morphology import Robot
 from gcnt.morphology.limb_types import FAMILY_TYPE_SLOTS
 
@@ -111,22 +112,11 @@ def static_features(robot: Robot, k: int) -> tuple[np.ndarray, np.ndarray]:
     return template, rng
 
 
-def quat_to_expmap(q: np.ndarray) -> np.ndarray:
-    """Exponential map (rotation axis × angle, angle in [0, π]) of unit quaternions [..., 4] (w first)."""
-    w = q[..., 0]
-    v = q[..., 1:]
-    sign = np.where(w < 0, -1.0, 1.0)  # q and -q are the same rotation: take w >= 0
-    w = w * sign
-    v = v * sign[..., None]
-    s = np.sqrt(np.einsum("...i,...i->...", v, v))
-    angle = 2.0 * np.arctan2(s, w)
-    # angle / s, with its limit 2 (as s -> 0, w -> 1) where the rotation is (almost) zero
-    scale = np.divide(angle, s, out=np.full_like(s, 2.0), where=s > 1e-12)
-    return v * scale[..., None]
+class LimbFeaturizer(Featurizer):
+    """SMPENV's :class:`~gcnt.envs.base.Featurizer`: the 19-d observation of a fixed list of
+    sub-envs (given by their robots) padded to K limbs. No root outputs, no limb context."""
 
-
-class LimbFeaturizer:
-    """Featurise a fixed list of sub-envs (given by their robots) padded to K limbs."""
+    obs_dim = OBS_DIM
 
     def __init__(self, robots: Sequence[Robot], models: Sequence[mujoco.MjModel], k: int):
         self.k = k

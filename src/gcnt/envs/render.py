@@ -1,4 +1,4 @@
-"""Render an SMPENV rollout to an mp4, headless (MuJoCo's EGL backend), off the hot path.
+"""Render a rollout of any benchmark's env to an mp4, headless (MuJoCo's EGL backend), off the hot path.
 
 MuJoCo picks its OpenGL backend when ``mujoco`` is first imported, from ``MUJOCO_GL``; the Makefile
 exports ``MUJOCO_GL=egl``. This module sets ``MUJOCO_GL=egl`` if it is unset, and if ``mujoco`` was
@@ -67,17 +67,22 @@ def render_rollout(
 ) -> Path:
     """Roll out ``policy`` (uniform random actions if None) and write sub-env ``index`` as mp4.
 
-    ``env_or_robot`` is an :class:`~gcnt.envs.SMPEnv` (its sub-envs all step; episodes that end
-    are reset, so the video goes on) or a :class:`~gcnt.morphology.Robot` (a one-robot env is
-    built with ``seed``). The camera follows the robot when the robot file has a tracking camera
+    ``env_or_robot`` is a :class:`~gcnt.envs.BatchedMujocoEnv` (its sub-envs all step; episodes
+    that end are reset, so the video goes on) or a :class:`~gcnt.morphology.Robot` (a one-robot
+    env of its catalogue's benchmark is built with ``seed``). Per-episode model edits (terrain)
+    reach the video through the env's ``sync_render`` hook. The camera follows the robot when the robot file has a tracking camera
     (``camera="track"``); width and height should be even (H.264).
     """
     import imageio.v2 as imageio
 
-    from gcnt.envs.smpenv import SMPEnv
+    from gcnt.envs.benchmark import get_benchmark
 
     own = isinstance(env_or_robot, Robot)
-    env = SMPEnv([env_or_robot], seed=seed, num_threads=1) if own else env_or_robot
+    if own:
+        bench = get_benchmark(env_or_robot.catalogue)
+        env = bench.make_env([env_or_robot], seed=seed, num_threads=1)
+    else:
+        env = env_or_robot
     model, data = env.sim(index)
     rmodel = copy.copy(model)  # a private copy whose offscreen buffer fits the video
     rmodel.vis.global_.offwidth = max(width, rmodel.vis.global_.offwidth)
@@ -100,6 +105,7 @@ def render_rollout(
                     td = policy(td)
                 _, td = env.step_and_maybe_reset(td)
                 if t % every == 0:
+                    env.sync_render(index, rmodel, renderer)
                     renderer.update_scene(data, camera=cam)
                     writer.append_data(renderer.render())
     finally:

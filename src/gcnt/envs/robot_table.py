@@ -8,7 +8,8 @@ Keys of the table (batch [R] robots, limbs padded to K, A action slots per limb)
 
     limbs/mask         [R,K]    bool     real limb
     limbs/type         [R,K]    int64    global limb-type id (0 on padding)
-    limbs/action_mask  [R,K,A]  bool     a motor exists in this slot (never on torso/padding)
+    limbs/action_mask  [R,K,A]  bool     a motor drives this slot (``Robot.action_slots``)
+    limbs/context      [R,K,C]  float32  static limb description (only if the env has one)
     graph/adj          [R,K,K]  bool
     graph/dist         [R,K,K]  uint8    hop distance clamped to DIST_PAD-1; DIST_PAD on padding
     graph/wl           [R,W]    float32  WL colour counts
@@ -28,11 +29,13 @@ from tensordict import TensorDict
 
 from gcnt.morphology import DIST_PAD, Robot
 
-#: Keys a policy needs from the table; the env emits the contract's subset of them.
+#: Keys a policy may need from the table (``limbs/context`` only where the benchmark has one); the
+#: env emits the contract's subset of them.
 STATIC_KEYS: tuple[tuple[str, str], ...] = (
     ("limbs", "mask"),
     ("limbs", "type"),
     ("limbs", "action_mask"),
+    ("limbs", "context"),
     ("graph", "adj"),
     ("graph", "dist"),
     ("graph", "wl"),
@@ -48,12 +51,19 @@ class RobotTooLargeError(ValueError):
 
 
 def robot_table(
-    robots: Sequence[Robot], max_limbs: int | None = None, num_actions: int | None = None
+    robots: Sequence[Robot],
+    max_limbs: int | None = None,
+    num_actions: int | None = None,
+    *,
+    context: Sequence[np.ndarray] | None = None,
 ) -> TensorDict:
     """Build the padded static table of ``robots`` (batch [R]).
 
     ``max_limbs`` defaults to the largest robot; ``num_actions`` (A, action slots per limb) to the
-    largest joints-per-limb of the robots' families.
+    largest joints-per-limb of the robots' families. Slot ``a`` of limb ``l`` is marked in the
+    action mask when a joint of the limb has action slot ``a`` (``Robot.action_slots(l)``).
+    ``context``: one [num_limbs, C] array per robot, stored padded with zeros as
+    ``limbs/context`` [R,K,C] float32.
     """
     if not robots:
         raise ValueError("robot_table needs at least one robot")
@@ -65,11 +75,28 @@ def robot_table(
                 f"robot {r.name!r} ({r.source}) has {r.num_limbs} limbs; this table/model allows "
                 f"at most {k} (raise max_limbs)"
             )
-        widest = max(len(j) for j in r.actuator_ids)
-        if widest > a:
-            raise RobotTooLargeError(
-                f"robot {r.name!r} has a limb with {widest} motors; only {a} action slots per limb"
-            )
+        for limb in range(r.num_limbs):
+            slots = r.action_slots(limb)
+            if len(slots) != len(r.actuator_ids[limb]):
+                raise ValueError(
+                    f"robot {r.name!r}, limb {r.body_names[limb]!r}: {len(slots)} action slots "
+                    f"for {len(r.actuator_ids[limb])} motors"
+                )
+            if slots and (max(slots) >= a or min(slots) < 0):
+                raise RobotTooLargeError(
+                    f"robot {r.name!r}, limb {r.body_names[limb]!r}: a motor in action slot "
+                    f"{max(slots)}; only {a} action slots per limb"
+                )
+    if context is not None:
+        if len(context) != len(robots):
+            raise ValueError(f"context: {len(context)} arrays for {len(robots)} robots")
+        widths = {np.shape(c)[-1] if np.ndim(c) == 2 else -1 for c in context}
+        for r, c in zip(robots, context, strict=True):
+            if np.ndim(c) != 2 or np.shape(c)[0] != r.num_limbs or len(widths) != 1:
+                raise ValueError(
+                    f"robot {r.name!r}: context of shape {np.shape(c)}; expected "
+                    f"[{r.num_limbs} limbs, C] with the same C for every robot"
+                )
     n, w = len(robots), len(robots[0].graph.wl)
     mask = np.zeros((n, k), bool)
     types = np.zeros((n, k), np.int64)
@@ -87,8 +114,8 @@ def robot_table(
             raise ValueError(f"robot {r.name!r}: WL vector size {len(g.wl)} != {w}")
         mask[i, :m] = True
         types[i, :m] = r.global_types
-        for limb, motors in enumerate(r.actuator_ids):
-            amask[i, limb, : len(motors)] = True
+        for limb in range(m):
+            amask[i, limb, list(r.action_slots(limb))] = True
         adj[i, :m, :m] = g.adj
         dist[i, :m, :m] = np.clip(g.dist, 0, DIST_PAD - 1)
         wl[i] = g.wl
@@ -96,13 +123,19 @@ def robot_table(
         trav[i, :m] = g.traversal
         ppr[i, :m, :m] = g.ppr
         lap[i, :m, :m] = g.laplacian
+    limbs = {
+        "mask": torch.from_numpy(mask),
+        "type": torch.from_numpy(types),
+        "action_mask": torch.from_numpy(amask),
+    }
+    if context is not None:
+        ctx = np.zeros((n, k, np.shape(context[0])[1]), np.float32)
+        for i, c in enumerate(context):
+            ctx[i, : len(c)] = c
+        limbs["context"] = torch.from_numpy(ctx)
     return TensorDict(
         {
-            "limbs": {
-                "mask": torch.from_numpy(mask),
-                "type": torch.from_numpy(types),
-                "action_mask": torch.from_numpy(amask),
-            },
+            "limbs": limbs,
             "graph": {
                 "adj": torch.from_numpy(adj),
                 "dist": torch.from_numpy(dist),

@@ -1,6 +1,7 @@
-"""Per-family SMPENV task rules: reward weights, the healthy test and the reset noise.
+"""SMPENV's task rules: reward weights, the healthy test and the reset noise per family, and
+:class:`PlanarRootRules`, their :class:`~gcnt.envs.base.TaskRules` for robots on planar root joints.
 
-The rules (``/work/shared/spec/smpenv.md``, "Reward, termination, reset"):
+The rules of the SMPENV benchmark:
 
 =========== ============================== ================================================ ==========================================
 family      reward per control step        healthy (the episode terminates when it fails)  reset noise
@@ -16,8 +17,9 @@ cheetah     Δx/dt − 0.1·Σa²                never terminates               
 x, z and pitch are the qpos of the torso's root joints (slide x, slide z, hinge y), s is
 (qpos, qvel). The size-dependent bounds come from the body count in the robot's name
 (``walker_4_main`` → 4, ``hopper_5`` → 5); a name without a number falls back to the robot's limb
-count. Everything here is per robot; the env applies the rules of each sub-env right after stepping
-it, in the physics threads.
+count. dt is the control period (frame_skip × timestep: 0.008 s for walker, hopper and humanoid,
+0.04 s for cheetah). Everything here is per robot; the env applies the rules of each sub-env right
+after stepping it, in the physics threads.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from gcnt.envs.base import TaskRules
 from gcnt.morphology import Robot
 
 log = logging.getLogger(__name__)
@@ -43,8 +46,8 @@ _HOPPER_DEFAULT_MIN_Z = 0.7  # gym's hopper, for a hand-made hopper of another s
 
 
 @dataclass(frozen=True)
-class TaskRules:
-    """Reward, termination and reset-noise rules of one robot."""
+class FamilyRules:
+    """Reward, termination and reset-noise rules of one SMPENV robot."""
 
     family: str
     healthy_reward: float  # per control step while alive
@@ -86,12 +89,12 @@ def body_count(robot: Robot) -> int:
     return int(m.group(1)) if m else robot.num_limbs
 
 
-def task_rules(robot: Robot) -> TaskRules:
+def task_rules(robot: Robot) -> FamilyRules:
     """The SMPENV rules of ``robot``, from its family and name."""
     fam = robot.family
     if fam == "walker":
         shift = _WALKER_Z_SHIFT.get(body_count(robot), 0.0)
-        return TaskRules(fam, 1.0, 1e-3, z_low=0.8 - shift, z_high=2.0 - shift, pitch_max=1.0)
+        return FamilyRules(fam, 1.0, 1e-3, z_low=0.8 - shift, z_high=2.0 - shift, pitch_max=1.0)
     if fam == "hopper":
         n = body_count(robot)
         if n not in _HOPPER_MIN_Z:
@@ -102,11 +105,11 @@ def task_rules(robot: Robot) -> TaskRules:
                 _HOPPER_DEFAULT_MIN_Z,
             )
         z_low = _HOPPER_MIN_Z.get(n, _HOPPER_DEFAULT_MIN_Z)
-        return TaskRules(fam, 1.0, 1e-3, z_low=z_low, pitch_max=1.0, state_check=True)
+        return FamilyRules(fam, 1.0, 1e-3, z_low=z_low, pitch_max=1.0, state_check=True)
     if fam == "humanoid":
-        return TaskRules(fam, 1.0, 1e-3, z_low=0.4, z_high=2.1, pitch_max=1.0)
+        return FamilyRules(fam, 1.0, 1e-3, z_low=0.4, z_high=2.1, pitch_max=1.0)
     if fam == "cheetah":
-        return TaskRules(fam, 0.0, 0.1, qpos_noise=0.1, qvel_noise=0.1, qvel_noise_normal=True)
+        return FamilyRules(fam, 0.0, 0.1, qpos_noise=0.1, qvel_noise=0.1, qvel_noise_normal=True)
     raise ValueError(f"robot {robot.name!r}: family {fam!r} has no SMPENV task rules")
 
 
@@ -150,7 +153,7 @@ def root_joints(robot: Robot, model: mujoco.MjModel) -> RootJoints:
 
 
 def reset_noise(
-    rules: TaskRules, rng: np.random.Generator, nq: int, nv: int
+    rules: FamilyRules, rng: np.random.Generator, nq: int, nv: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Draw the reset noise of one sub-env: (qpos noise [nq], qvel noise [nv])."""
     dq = rng.uniform(-rules.qpos_noise, rules.qpos_noise, nq)
@@ -159,3 +162,49 @@ def reset_noise(
     else:
         dv = rng.uniform(-rules.qvel_noise, rules.qvel_noise, nv)
     return dq, dv
+
+
+class PlanarRootRules(TaskRules):
+    """SMPENV's :class:`~gcnt.envs.base.TaskRules` of one sub-env: a robot on planar root joints.
+
+    Start: every joint at its ref (``qpos0``) plus the family's reset noise. Reward per control
+    step: Δx/dt + healthy reward − ctrl_cost·Σa², x being the root slide-x qpos; the episode
+    terminates when the family's healthy test fails (see :func:`task_rules`).
+    """
+
+    __slots__ = ("family", "inv_dt", "qpos", "qvel", "rest", "root", "x_prev")
+
+    def __init__(self, robot: Robot, model: mujoco.MjModel, dt: float):
+        self.family = task_rules(robot)
+        self.root = root_joints(robot, model)
+        self.inv_dt = 1.0 / dt
+        self.x_prev = 0.0
+        # qpos addresses of s[2:] (all but root x and z), for the hopper's state test
+        self.rest = np.setdiff1d(np.arange(model.nq), [self.root.x, self.root.z])
+        self.qpos: np.ndarray | None = None  # the sub-env's qpos and qvel, bound on first use
+        self.qvel: np.ndarray | None = None
+
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        dq, dv = reset_noise(self.family, rng, model.nq, model.nv)
+        data.qpos[:] += dq
+        data.qvel[:] += dv
+
+    def begin(self, data: mujoco.MjData) -> None:
+        self.qpos, self.qvel = data.qpos, data.qvel
+        self.x_prev = data.qpos[self.root.x]
+
+    def step(self, data: mujoco.MjData, action_sq: float) -> tuple[float, bool]:
+        q, rules, root = self.qpos, self.family, self.root
+        if q is None:
+            self.begin(data)
+            q = self.qpos
+        x = float(q[root.x])
+        if rules.state_check:
+            ok = rules.healthy(q[root.z], q[root.pitch], q[self.rest], self.qvel)
+        else:
+            ok = rules.healthy(q[root.z], q[root.pitch])
+        reward = (
+            (x - self.x_prev) * self.inv_dt + rules.healthy_reward - rules.ctrl_cost * action_sq
+        )
+        self.x_prev = x
+        return reward, not ok

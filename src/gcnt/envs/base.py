@@ -1,0 +1,875 @@
+"""One batched TorchRL env over MuJoCo for any benchmark: N robots in lockstep, padded to K limbs.
+
+A benchmark plugs in two things; everything else (threads, partial resets, blow-ups, seeding,
+specs, the output TensorDict, rendering hooks) is :class:`BatchedMujocoEnv`'s:
+
+* a :class:`Featurizer`: the per-limb observation (width F), gathered from each sub-env's
+  ``MjData`` in the physics threads and computed for all sub-envs at once with whole-array numpy;
+  optionally extra root outputs (e.g. a height map ``hfield`` [N, D]) and a static per-limb
+  context (width C) that goes into the robot table as ``limbs/context``;
+* :class:`TaskRules`, one object per sub-env: its start state (pose, reset noise, per-episode
+  world edits), and its reward and termination after each control step (run in the physics
+  threads).
+
+Output per step (batch [N], limbs padded to K, A action slots per limb)::
+
+    morph_id            [N]        int64    index into the run's robot table
+    limbs/obs           [N,K,F]    float32  the featuriser's per-limb observation
+    limbs/mask          [N,K]      bool     real limb
+    limbs/type          [N,K]      int64    global limb-type id
+    limbs/action_mask   [N,K,A]    bool     a motor drives this slot
+    limbs/context       [N,K,C]    float32  only if the featuriser declares a context
+    graph/adj           [N,K,K]    bool
+    graph/dist          [N,K,K]    uint8
+    graph/wl            [N,W]      float32
+    <root outputs>      [N,D]      float32  only those the featuriser declares (e.g. hfield)
+    reward, done, terminated, truncated   [N,1]
+
+and the action ``limbs/action`` [N,K,A] in [-1, 1]: slot ``a`` of limb ``l`` drives the motor of
+the joint that ``Robot.action_slots(l)`` puts in slot ``a``. Actions on slots without a motor
+(torso, padding, missing joints) are ignored, even NaN. The time limit is a truncation, not a
+termination.
+
+Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel`` unless the rules
+edit the model per episode). A step runs on ``num_threads`` threads (``mj_step`` releases the
+GIL): each thread pulls sub-envs from a shared queue, most expensive first (by a running average
+of their physics time, so that the threads finish together), steps them, refreshes the kinematics
+the featuriser needs, copies the rows the observation needs, and applies the task rules (while one
+thread does this Python work, the others are in the physics); then one vectorised featurisation
+covers all sub-envs. Nothing loops over limbs in Python.
+
+Blow-ups: a sub-env whose observation turns non-finite, or on which MuJoCo raises one of its
+bad-qpos/qvel/qacc warnings (MuJoCo then resets that ``MjData`` by itself), ends its episode with
+``terminated``, reward 0 and a finite observation; one :class:`PhysicsBlowupWarning` per episode
+names the robot and sub-env. The other sub-envs go on; the next (partial) reset restarts it.
+MuJoCo's own "Nan, Inf or huge value" messages are not printed (see
+:func:`quiet_mujoco_instability_messages`).
+
+An env holds threads and views into MuJoCo's memory and does not pickle: give multi-process
+collectors a constructor (``functools.partial(SMPEnv, robots, ...)``), not an instance.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+import warnings
+from abc import ABC, abstractmethod
+from collections import Counter, deque
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from gcnt.envs.robot_table import RobotTooLargeError, robot_table
+from gcnt.morphology import GLOBAL_LIMB_TYPES, Robot
+
+log = logging.getLogger(__name__)
+
+_BLOWUP_WARNINGS = np.array(
+    [
+        int(mujoco.mjtWarning.mjWARN_BADQPOS),
+        int(mujoco.mjtWarning.mjWARN_BADQVEL),
+        int(mujoco.mjtWarning.mjWARN_BADQACC),
+    ]
+)
+#: How MuJoCo's messages for the warnings above begin.
+_BLOWUP_MESSAGE = "Nan, Inf or huge value in Q"
+
+# num_threads=None: see BatchedMujocoEnv._threads_now
+_TUNE_PERIOD = 100
+_TUNE_MAX_PERIOD = 1600
+_TUNE_PROBE = 8
+
+#: MuJoCo functions run on a sub-env after each step and reset, before the featuriser gathers:
+#: positions, orientations and body velocities (``cvel``) of the current ``qpos``/``qvel``.
+DEFAULT_KINEMATICS: tuple[Callable[[mujoco.MjModel, mujoco.MjData], None], ...] = (
+    mujoco.mj_kinematics,
+    mujoco.mj_comPos,
+    mujoco.mj_comVel,
+)
+
+
+class PhysicsBlowupWarning(RuntimeWarning):
+    """The physics of a sub-env blew up; its episode was ended (terminated)."""
+
+
+# --------------------------------------------------------------------------- MuJoCo messages
+
+_quiet_lock = threading.Lock()
+_quiet_installed = False
+_mujoco_log = logging.getLogger("gcnt.mujoco")
+
+
+def _mujoco_warning(message: str) -> None:
+    if isinstance(message, bytes):
+        message = message.decode(errors="replace")
+    if not message.startswith(_BLOWUP_MESSAGE):
+        _mujoco_log.warning("%s", message)
+
+
+def quiet_mujoco_instability_messages() -> None:
+    """Route MuJoCo's warning messages (process-wide) to the ``gcnt.mujoco`` logger, without its
+    "Nan, Inf or huge value in QPOS/QVEL/QACC" messages: a blow-up prints a line each time it
+    recurs, while the env reports it once per episode as a :class:`PhysicsBlowupWarning`.
+
+    Called when the first env is built; idempotent. It replaces any earlier MuJoCo warning
+    callback (dm_control installs one that logs through absl).
+    """
+    global _quiet_installed
+    with _quiet_lock:
+        if not _quiet_installed:
+            mujoco.set_mju_user_warning(_mujoco_warning)
+            _quiet_installed = True
+
+
+# --------------------------------------------------------------------------- plug-in interfaces
+
+
+class Featurizer(ABC):
+    """The per-limb observation of a fixed list of sub-envs, padded to K limbs.
+
+    Built once per env as ``featurizer(robots, models, k)`` (one robot and MjModel per sub-env).
+    The env calls, for sub-env ``j``, after :attr:`kinematics` ran on its MjData (in a physics
+    thread, so touch only row ``j`` of your buffers): the copy pairs of :meth:`bind` if it gave
+    any, else :meth:`gather`; then, on the caller's thread, :meth:`compute` (and
+    :meth:`compute_root`) for all sub-envs or a subset ``rows``.
+    """
+
+    #: per-limb observation width F
+    obs_dim: int = 0
+    #: width C of the static per-limb context (0: none; see :meth:`limb_context`)
+    context_dim: int = 0
+    #: MuJoCo functions ``f(model, data)`` the env runs on a sub-env before gathering
+    kinematics: tuple[Callable[[mujoco.MjModel, mujoco.MjData], None], ...] = DEFAULT_KINEMATICS
+
+    @property
+    def root_outputs(self) -> Mapping[str, int]:
+        """Extra float32 outputs at the root of the TensorDict, name -> width D ([N, D] each)."""
+        return {}
+
+    def limb_context(self, robot: Robot, model: mujoco.MjModel) -> np.ndarray:
+        """Static description of each limb of ``robot``, [robot.num_limbs, C] (C > 0 only)."""
+        raise NotImplementedError(
+            f"{type(self).__name__} declares context_dim={self.context_dim} but no limb_context"
+        )
+
+    def bind(self, j: int, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]] | None:
+        """Optional fast path of :meth:`gather`: ``(buffer view, MjData view)`` pairs that the env
+        copies with ``dst[...] = src`` (MjData arrays never move). None: call :meth:`gather`."""
+        return None
+
+    @abstractmethod
+    def gather(self, j: int, data: mujoco.MjData) -> None:
+        """Copy what sub-env ``j``'s observation needs out of its MjData (kinematics current)."""
+
+    @abstractmethod
+    def compute(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Observations float32 [n, K, F] of the gathered sub-envs (``rows``: a subset, in order).
+        Padded limbs must come out as zeros."""
+
+    def compute_root(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The :attr:`root_outputs` of the gathered sub-envs, float32 [n, D] each."""
+        return {}
+
+
+class TaskRules(ABC):
+    """Start state, reward and termination of one sub-env (one object per sub-env).
+
+    Built as ``rules(robot, model, dt)`` with the sub-env's robot, its MjModel and the control
+    period ``dt`` (frame_skip × timestep). The object may keep per-episode state (e.g. the last
+    x position for a velocity reward): it serves one sub-env only.
+    """
+
+    #: True if :meth:`reset` edits the MjModel (e.g. terrain per episode): then every sub-env gets
+    #: a private MjModel instead of sharing one per robot
+    edits_model: bool = False
+
+    @abstractmethod
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        """Put ``data``, just reset to the model's defaults (``mj_resetData``), into a start
+        state: pose, reset noise, per-episode world edits. Runs on the caller's thread, sub-envs
+        in index order, so that draws from ``rng`` are reproducible."""
+
+    @abstractmethod
+    def begin(self, data: mujoco.MjData) -> None:
+        """The state in ``data`` is where the next step's reward is measured from (called after
+        :meth:`reset` and after ``set_state``)."""
+
+    @abstractmethod
+    def step(self, data: mujoco.MjData, action_sq: float) -> tuple[float, bool]:
+        """After a control step: ``(reward, terminated)``. ``action_sq`` is Σa² of the clipped
+        actions on the sub-env's motors. Runs in a physics thread: touch only this sub-env."""
+
+    def sync_render(self, model: mujoco.MjModel, renderer: mujoco.Renderer | None) -> None:
+        """Copy this sub-env's per-episode model edits into a renderer's private model copy (and
+        upload them to its GPU context, e.g. ``mjr_uploadHField``). Default: nothing to copy."""
+        return None
+
+
+FeaturizerFactory = Callable[[Sequence[Robot], Sequence[mujoco.MjModel], int], Featurizer]
+RulesFactory = Callable[[Robot, mujoco.MjModel, float], TaskRules]
+
+
+# --------------------------------------------------------------------------- internals
+
+
+def _median(values) -> float:
+    return float(np.median(np.fromiter(values, float)))
+
+
+@dataclass
+class _Sim:
+    """One sub-env: its robot, MjData, rules and cached views of the MjData arrays."""
+
+    index: int
+    robot: Robot
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    rules: TaskRules
+    ctrl_slice: slice  # this sub-env's motors in the flat control vector
+    ctrl: np.ndarray
+    warn: np.ndarray  # data.warning.number
+    # (destination, source) views that copy what the observation needs out of the MjData;
+    # None: use Featurizer.gather
+    copies: list[tuple[np.ndarray, np.ndarray]] | None = None
+
+
+class _StepQueue:
+    """The sub-envs of one step, handed out in order to the threads; the thread that finishes
+    the last one (or fails) wakes the caller of :meth:`wait`."""
+
+    __slots__ = ("_done", "_error", "_finished", "_items", "_lock", "_next", "_total")
+
+    def __init__(self, items: list[int]):
+        self._items, self._total = items, len(items)
+        self._next = self._finished = 0
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+        self._error: BaseException | None = None
+        if not items:
+            self._done.set()
+
+    def take(self, limit: int) -> int:
+        """The next sub-env if its queue position is below ``limit``, else -1."""
+        with self._lock:
+            j = self._next
+            if j >= limit or self._error is not None:
+                return -1
+            self._next = j + 1
+        return self._items[j]
+
+    def finish(self) -> None:
+        with self._lock:
+            self._finished += 1
+            if self._finished == self._total:
+                self._done.set()
+
+    def fail(self, error: BaseException) -> None:
+        with self._lock:
+            self._error = error
+        self._done.set()
+
+    def wait(self) -> None:
+        """Return when every sub-env is done; re-raise a helper thread's error."""
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+
+
+def _robot_key(r: Robot) -> tuple[str, str]:
+    return (r.name, r.xml)
+
+
+def _cost_guess(model: mujoco.MjModel, frame_skip: int) -> float:
+    """A first guess of a sub-env's physics time per control step (seconds), to order the work
+    queue until measured times replace it."""
+    evals = 4 if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else 1
+    return frame_skip * evals * model.nv * 1e-6
+
+
+# --------------------------------------------------------------------------- the env
+
+
+class BatchedMujocoEnv(EnvBase):
+    """N robots in lockstep, batch [N]; the same robot may appear several times.
+
+    Args:
+        robots: one :class:`~gcnt.morphology.Robot` per sub-env.
+        max_limbs: K, the padded limb count (default: the largest robot). A larger robot raises
+            :class:`~gcnt.envs.RobotTooLargeError`.
+        featurizer: builds the :class:`Featurizer` (``featurizer(robots, models, k)``).
+        rules: builds one sub-env's :class:`TaskRules` (``rules(robot, model, dt)``).
+        action_slots: A, action slots per limb.
+        frame_skip: physics steps per control step.
+        max_episode_steps: control steps before an episode is truncated.
+        device: where the output tensors live (the simulation runs on the CPU).
+        seed: seed of the reset noise (see :meth:`set_seed`).
+        num_threads: threads stepping the physics, at most N. Default (None): the CPUs this
+            process may use, or 1 whenever that steps faster (the env times both settings now
+            and then; on a machine shared with other busy processes a second thread can cost
+            more than it gains). Results do not depend on it.
+        robot_ids: each sub-env's index into a run-wide robot table, emitted as ``morph_id``
+            (default: the index of its robot in :attr:`table`).
+        name: the env's name in error messages and warnings.
+
+    Attributes:
+        robots, max_limbs (K), action_slots (A), table (``robot_table`` of the distinct robots,
+        batch [R], with ``limbs/context`` if the featuriser has one), distinct_robots, local_ids
+        ([N] into ``table``), morph_ids ([N], the emitted ``morph_id``: equal to ``local_ids``
+        unless ``robot_ids`` was given), dt (control period per sub-env, [N]), thread_use (how
+        many steps ran on how many threads).
+    """
+
+    batch_locked = True
+    # We skip frames ourselves. Without this flag, torchrl 0.14 sees the ``frame_skip`` attribute
+    # and silently wraps the env in a TransformedEnv(FrameSkipTransform) that steps 4x again.
+    _has_frame_skip = True
+
+    def __init__(
+        self,
+        robots: Sequence[Robot],
+        max_limbs: int | None = None,
+        *,
+        featurizer: FeaturizerFactory,
+        rules: RulesFactory,
+        action_slots: int,
+        frame_skip: int,
+        max_episode_steps: int = 1000,
+        device: torch.device | str = "cpu",
+        seed: int | None = None,
+        num_threads: int | None = None,
+        robot_ids: Sequence[int] | None = None,
+        name: str | None = None,
+    ):
+        self.name = name or type(self).__name__
+        robots = tuple(robots)
+        if not robots:
+            raise ValueError(f"{self.name} needs at least one robot")
+        if max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        if action_slots < 1:
+            raise ValueError(f"action_slots must be >= 1, got {action_slots}")
+        if frame_skip < 1:
+            raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
+        n = len(robots)
+        super().__init__(device=device, batch_size=torch.Size([n]))
+        quiet_mujoco_instability_messages()
+        self.robots = robots
+        self.max_episode_steps = int(max_episode_steps)
+        self.frame_skip = int(frame_skip)
+        self.action_slots = a_slots = int(action_slots)
+
+        # Distinct robots and their models.
+        distinct: dict[tuple[str, str], int] = {}
+        for r in robots:
+            distinct.setdefault(_robot_key(r), len(distinct))
+        self.distinct_robots = tuple(
+            next(r for r in robots if _robot_key(r) == key) for key in distinct
+        )
+        self.local_ids = torch.tensor([distinct[_robot_key(r)] for r in robots], dtype=torch.int64)
+        self.morph_ids = self._check_robot_ids(robot_ids)
+        shared = [r.compile() for r in self.distinct_robots]
+        dts = [float(m.opt.timestep) * self.frame_skip for m in shared]
+        # One TaskRules per sub-env; copies of a robot share its MjModel unless the rules edit it.
+        models: list[mujoco.MjModel] = []
+        sub_rules: list[TaskRules] = []
+        first: dict[int, TaskRules] = {}
+        for r, lid in zip(robots, self.local_ids.tolist(), strict=True):
+            if lid not in first:
+                model = shared[lid]
+            else:
+                model = r.compile() if first[lid].edits_model else shared[lid]
+            rl = rules(r, model, dts[lid])
+            first.setdefault(lid, rl)
+            models.append(model)
+            sub_rules.append(rl)
+        k_table = max_limbs or max(r.num_limbs for r in robots)
+        self._check_sizes(k_table)
+        self._featurizer = featurizer(robots, models, k_table)
+        f = self._featurizer
+        context = None
+        if f.context_dim > 0:
+            context = [
+                np.asarray(f.limb_context(r, shared[i]), np.float32)
+                for i, r in enumerate(self.distinct_robots)
+            ]
+        self.table = robot_table(self.distinct_robots, max_limbs, a_slots, context=context)
+        self.max_limbs = k = int(self.table["limbs", "mask"].shape[1])
+
+        # Sub-envs.
+        self._sims: list[_Sim] = []
+        ctrl_rows, ctrl_limbs, ctrl_slots, offset = [], [], [], 0
+        for i, r in enumerate(robots):
+            model = models[i]
+            data = mujoco.MjData(model)
+            limb_of = np.full(model.nu, -1, np.int64)
+            slot_of = np.zeros(model.nu, np.int64)
+            for limb, acts in enumerate(r.actuator_ids):
+                for act, slot in zip(acts, r.action_slots(limb), strict=True):
+                    limb_of[act], slot_of[act] = limb, slot
+            if (limb_of < 0).any():
+                raise ValueError(
+                    f"robot {r.name!r}: actuators {np.nonzero(limb_of < 0)[0].tolist()} drive no "
+                    f"limb joint"
+                )
+            ctrl_rows.append(np.full(model.nu, i))
+            ctrl_limbs.append(limb_of)
+            ctrl_slots.append(slot_of)
+            self._sims.append(
+                _Sim(
+                    index=i,
+                    robot=r,
+                    model=model,
+                    data=data,
+                    rules=sub_rules[i],
+                    ctrl_slice=slice(offset, offset + model.nu),
+                    ctrl=data.ctrl,
+                    warn=data.warning.number,
+                )
+            )
+            offset += model.nu
+        self._ctrl_index = (
+            np.concatenate(ctrl_rows),
+            np.concatenate(ctrl_limbs),
+            np.concatenate(ctrl_slots),
+        )
+        self.dt = np.array([dts[int(lid)] for lid in self.local_ids])
+        self._elapsed = np.zeros(n, np.int64)
+        self._blown = np.zeros(n, bool)
+        self._warned = np.zeros(n, bool)  # a blow-up was reported this episode
+        self._last_terminated = np.zeros(n, bool)
+        self._last_truncated = np.zeros(n, bool)
+        for s in self._sims:
+            s.copies = f.bind(s.index, s.data)
+        self._kinematics = tuple(f.kinematics)
+        # Written per sub-env by the physics threads: reward and termination.
+        self._reward = np.zeros(n)
+        self._term = np.zeros(n, bool)
+        self._sq = np.zeros(n)
+        self._obs = np.zeros((n, k, f.obs_dim), np.float32)
+        self._root_out = {
+            key: np.zeros((n, int(d)), np.float32) for key, d in f.root_outputs.items()
+        }
+        self._limb_batch = torch.Size([n, k])
+
+        # Static per-sub-env tensors (the graph half of the contract).
+        local = self.local_ids
+        keys = [("limbs", "mask"), ("limbs", "type"), ("limbs", "action_mask")]
+        if context is not None:
+            keys.append(("limbs", "context"))
+        keys += [("graph", "adj"), ("graph", "dist"), ("graph", "wl")]
+        self._static = {key: self.table[key][local].to(self.device) for key in keys}
+        self._morph_id_dev = self.morph_ids.to(self.device)
+        self._no_motor = ~self.table["limbs", "action_mask"][local].numpy()
+
+        self._setup_threads(num_threads)
+        self._make_specs()
+        self._rng = np.random.default_rng(seed)
+        if seed is not None:
+            self.set_seed(seed)
+
+    # ------------------------------------------------------------------ construction helpers
+    def _check_robot_ids(self, robot_ids: Sequence[int] | None) -> torch.Tensor:
+        n = len(self.robots)
+        if robot_ids is None:
+            return self.local_ids.clone()
+        ids = torch.as_tensor(list(robot_ids), dtype=torch.int64)
+        if ids.shape != (n,):
+            raise ValueError(f"robot_ids must give one id per robot ({n}), got {tuple(ids.shape)}")
+        if (ids < 0).any():
+            raise ValueError(f"robot_ids must be >= 0, got {ids.tolist()}")
+        owner: dict[int, str] = {}
+        for r, i in zip(self.robots, ids.tolist(), strict=True):
+            if owner.setdefault(i, r.name) != r.name:
+                raise ValueError(
+                    f"robot_ids gives robots {owner[i]!r} and {r.name!r} the same id {i}"
+                )
+        return ids
+
+    def _check_sizes(self, k: int) -> None:
+        """Raise the table's RobotTooLargeError before a featuriser sees an oversized robot."""
+        for r in self.robots:
+            if r.num_limbs > k:
+                raise RobotTooLargeError(
+                    f"robot {r.name!r} ({r.source}) has {r.num_limbs} limbs; {self.name} allows "
+                    f"at most {k} (raise max_limbs)"
+                )
+
+    def _setup_threads(self, num_threads: int | None) -> None:
+        """Threads: all of them pull sub-envs from one queue, the slowest first."""
+        n = len(self._sims)
+        self._auto = num_threads is None
+        if num_threads is None:
+            try:
+                num_threads = len(os.sched_getaffinity(0))
+            except AttributeError:  # not on Linux
+                num_threads = os.cpu_count() or 1
+        self.num_threads = max(1, min(int(num_threads), n))
+        self._auto = self._auto and self.num_threads > 1
+        self._use, self._tick = self.num_threads, 0
+        self._period = _TUNE_PERIOD
+        self._probe_at = _TUNE_PERIOD
+        self._times = {c: deque(maxlen=_TUNE_PROBE) for c in {1, self.num_threads}}
+        #: how many steps ran with how many physics threads
+        self.thread_use: Counter[int] = Counter()
+        # Python lists: the hot loop reads and writes single items, which numpy makes slow.
+        self._cost = [_cost_guess(s.model, self.frame_skip) for s in self._sims]
+        self._order = sorted(range(n), key=lambda i: -self._cost[i])
+        self._reserve = max(1, n // 12)  # sub-envs the helpers leave to the calling thread
+        self._pool = (
+            ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix=self.name.lower())
+            if self.num_threads > 1
+            else None
+        )
+
+    # ------------------------------------------------------------------ specs
+    def _make_specs(self) -> None:
+        n, k, a = self.batch_size[0], self.max_limbs, self.action_slots
+        w = int(self.table["graph", "wl"].shape[-1])
+        dev = self.device
+        bool_spec = lambda *shape: Categorical(2, shape=shape, dtype=torch.bool, device=dev)  # noqa: E731
+        f = self._featurizer
+        limbs = {
+            "obs": Unbounded(shape=(n, k, f.obs_dim), dtype=torch.float32, device=dev),
+            "mask": bool_spec(n, k),
+            "type": Categorical(
+                len(GLOBAL_LIMB_TYPES), shape=(n, k), dtype=torch.int64, device=dev
+            ),
+            "action_mask": bool_spec(n, k, a),
+        }
+        if ("limbs", "context") in self._static:
+            c = f.context_dim
+            limbs["context"] = Unbounded(shape=(n, k, c), dtype=torch.float32, device=dev)
+        root = {
+            key: Unbounded(shape=(n, v.shape[1]), dtype=torch.float32, device=dev)
+            for key, v in self._root_out.items()
+        }
+        self.observation_spec = Composite(
+            morph_id=Unbounded(shape=(n,), dtype=torch.int64, device=dev),
+            limbs=Composite(limbs, shape=(n, k), device=dev),
+            graph=Composite(
+                adj=bool_spec(n, k, k),
+                dist=Bounded(0, 255, shape=(n, k, k), dtype=torch.uint8, device=dev),
+                wl=Unbounded(shape=(n, w), dtype=torch.float32, device=dev),
+                shape=(n,),
+                device=dev,
+            ),
+            **root,
+            shape=(n,),
+            device=dev,
+        )
+        self.action_spec = Composite(
+            limbs=Composite(
+                action=Bounded(-1.0, 1.0, shape=(n, k, a), dtype=torch.float32, device=dev),
+                shape=(n, k),
+                device=dev,
+            ),
+            shape=(n,),
+            device=dev,
+        )
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=dev)
+        self.full_done_spec = Composite(
+            done=bool_spec(n, 1),
+            terminated=bool_spec(n, 1),
+            truncated=bool_spec(n, 1),
+            shape=(n,),
+            device=dev,
+        )
+
+    # ------------------------------------------------------------------ seeding
+    def _set_seed(self, seed: int | None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    # ------------------------------------------------------------------ physics helpers
+    def _refresh(self, s: _Sim) -> None:
+        """Kinematics of the current qpos/qvel, then copy what the observation needs."""
+        m, d = s.model, s.data
+        for fn in self._kinematics:
+            fn(m, d)
+        self._featurizer.gather(s.index, d)
+
+    def _featurize(self, rows: np.ndarray | None = None) -> None:
+        """Compute the observation of all sub-envs (or ``rows``) from what was gathered."""
+        f = self._featurizer
+        if rows is None:
+            self._obs[:] = f.compute()
+        else:
+            self._obs[rows] = f.compute(rows)
+        if self._root_out:
+            for key, v in f.compute_root(rows).items():
+                if rows is None:
+                    self._root_out[key][:] = v
+                else:
+                    self._root_out[key][rows] = v
+
+    def _work(self, queue: _StepQueue, ctrl: np.ndarray, limit: int) -> None:
+        """One thread's share of a step: take sub-envs from ``queue`` (up to position ``limit``),
+        step them, copy out what the observation needs, and apply the task rules (Python work
+        that overlaps with the other threads' physics)."""
+        try:
+            fs, clock, cost, blown = self.frame_skip, time.perf_counter, self._cost, self._blown
+            sims, gather, kin = self._sims, self._featurizer.gather, self._kinematics
+            reward, term, sq = self._reward, self._term, self._sq
+            qpos_w, qvel_w, qacc_w = (int(w) for w in _BLOWUP_WARNINGS)
+            step = mujoco.mj_step
+            take, finish = queue.take, queue.finish
+            while (i := take(limit)) >= 0:
+                s = sims[i]
+                m, d = s.model, s.data
+                s.ctrl[:] = ctrl[s.ctrl_slice]
+                t = clock()
+                step(m, d, fs)
+                cost[i] += 0.2 * (clock() - t - cost[i])
+                w = s.warn
+                if w[qpos_w] or w[qvel_w] or w[qacc_w]:
+                    blown[i] = True
+                    w[_BLOWUP_WARNINGS] = 0
+                for fn in kin:
+                    fn(m, d)
+                if s.copies is not None:
+                    for dst, src in s.copies:
+                        dst[...] = src
+                else:
+                    gather(i, d)
+                reward[i], term[i] = s.rules.step(d, sq[i])
+                finish()
+        except BaseException as e:
+            queue.fail(e)
+            raise
+
+    def _threads_now(self) -> int:
+        """How many threads step the physics this time (see ``num_threads`` in the class doc).
+
+        With ``num_threads=None``: now and then, step ``_TUNE_PROBE`` times with the other setting
+        (1 thread or all), and switch if its median physics time was 5% lower. The pause between
+        probes doubles (up to ``_TUNE_MAX_PERIOD`` steps) while the choice holds.
+        """
+        if not self._auto:
+            return self.num_threads
+        self._tick += 1
+        other = 1 if self._use == self.num_threads else self.num_threads
+        left = self._probe_at - self._tick
+        if 0 <= left < _TUNE_PROBE:
+            return other  # probing
+        if left < 0:  # a probe just ended
+            mine, theirs = self._times[self._use], self._times[other]
+            if theirs and mine and _median(theirs) < 0.95 * _median(mine):
+                self._use, self._period = other, _TUNE_PERIOD
+            else:
+                self._period = min(2 * self._period, _TUNE_MAX_PERIOD)
+            self._probe_at = self._tick + self._period
+        return self._use
+
+    def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
+        """Step and featurise every (active) sub-env on all threads."""
+        items = self._order if active is None else [i for i in self._order if active[i]]
+        queue = _StepQueue(items)
+        threads = self._threads_now()
+        t0 = time.perf_counter()
+        if threads > 1 and len(items) > 1:
+            # Helpers leave the cheapest few sub-envs (queued last) to this thread, so that it
+            # is usually the one to finish and need not wait to be woken up; and it never waits
+            # for a helper that has not started (under CPU contention it just does all the work).
+            limit = len(items) - self._reserve
+            for _ in range(threads - 1):
+                self._pool.submit(self._work, queue, ctrl, limit)
+        self._work(queue, ctrl, len(items))
+        queue.wait()
+        if self._auto:
+            self._times[threads].append(time.perf_counter() - t0)
+        self.thread_use[threads] += 1
+        # One vectorised featurisation of all sub-envs (its cost is per numpy call, not per row).
+        self._featurize()
+        cost = self._cost
+        self._order = sorted(range(len(cost)), key=cost.__getitem__, reverse=True)
+
+    # ------------------------------------------------------------------ output
+    def _output(
+        self, reward: np.ndarray | None, terminated: np.ndarray, truncated: np.ndarray
+    ) -> TensorDictBase:
+        n, dev, st = self.batch_size[0], self.device, self._static
+        # ``_new_unsafe`` skips the per-value checks of the public constructor (a third of the
+        # cost of building the output): the keys, shapes and devices below are fixed and match the
+        # specs, which check_env_specs verifies in the tests.
+        new = TensorDict._new_unsafe
+        flags = np.empty((3, n, 1), bool)  # terminated, truncated, done
+        flags[0, :, 0] = terminated
+        flags[1, :, 0] = truncated
+        np.logical_or(flags[0], flags[1], out=flags[2])
+        obs = torch.from_numpy(self._obs.copy())
+        term, trunc, done = torch.from_numpy(flags).unbind(0)
+        extra = {key: torch.from_numpy(v.copy()) for key, v in self._root_out.items()}
+        if dev.type != "cpu":
+            obs, term, trunc, done = (
+                x.to(dev, non_blocking=True) for x in (obs, term, trunc, done)
+            )
+            extra = {key: v.to(dev, non_blocking=True) for key, v in extra.items()}
+        limbs = {"obs": obs}
+        graph = {}
+        for (group, key), v in st.items():
+            (limbs if group == "limbs" else graph)[key] = v.clone()
+        out = {
+            "morph_id": self._morph_id_dev.clone(),
+            "limbs": new(limbs, batch_size=self._limb_batch, device=dev),
+            "graph": new(graph, batch_size=self.batch_size, device=dev),
+            **extra,
+            "terminated": term,
+            "truncated": trunc,
+            "done": done,
+        }
+        if reward is not None:
+            r = torch.from_numpy(reward.astype(np.float32).reshape(n, 1))
+            out["reward"] = r if dev.type == "cpu" else r.to(dev, non_blocking=True)
+        return new(out, batch_size=self.batch_size, device=dev)
+
+    # ------------------------------------------------------------------ reset
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        n = self.batch_size[0]
+        mask = None
+        if tensordict is not None:
+            mask = tensordict.get("_reset", None)
+        if mask is None:
+            which = np.ones(n, bool)
+        else:
+            which = mask.reshape(n).cpu().numpy().astype(bool)
+        rows = np.nonzero(which)[0]
+        for i in rows:
+            s = self._sims[i]
+            mujoco.mj_resetData(s.model, s.data)  # qpos = qpos0: every joint at its ref
+            s.rules.reset(s.model, s.data, self._rng)
+            s.rules.begin(s.data)
+        self._elapsed[which] = 0
+        self._blown[which] = False
+        self._warned[which] = False
+        self._last_terminated[which] = False
+        self._last_truncated[which] = False
+        # Refresh the reset sub-envs (the others keep their state and observation).
+        for i in rows:
+            self._refresh(self._sims[i])
+        self._featurize(rows)
+        return self._output(None, self._last_terminated.copy(), self._last_truncated.copy())
+
+    # ------------------------------------------------------------------ step
+    def _actions(self, tensordict: TensorDictBase) -> np.ndarray:
+        """The action as float64 [N, K, A], clipped to [-1, 1], zero on slots without a motor."""
+        a = tensordict.get(("limbs", "action")).detach()
+        if a.device.type != "cpu":
+            a = a.cpu()
+        a = a.numpy().reshape(self.batch_size[0], self.max_limbs, self.action_slots)
+        if not np.isfinite(a).all():
+            bad = ~np.isfinite(a) & ~self._no_motor
+            if bad.any():
+                rows = np.nonzero(bad.any((1, 2)))[0]
+                names = ", ".join(f"{self.robots[i].name!r} (sub-env {i})" for i in rows)
+                raise ValueError(f"{self.name}: non-finite (NaN/inf) action for robot {names}")
+        out = np.clip(a, -1.0, 1.0, dtype=np.float64)
+        out[self._no_motor] = 0.0  # torso, padding, missing joints (even NaN there is ignored)
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        n = self.batch_size[0]
+        a = self._actions(tensordict)
+        partial = tensordict.get("_step", None)
+        active = None if partial is None else partial.reshape(n).cpu().numpy().astype(bool)
+        ctrl = a[self._ctrl_index]
+        flat = a.reshape(n, -1)
+        np.einsum("nk,nk->n", flat, flat, out=self._sq)
+        with np.errstate(invalid="ignore"):
+            self._run_all(ctrl, active)
+        reward = self._reward.copy()
+        blown = self._blown.copy()
+        # Any non-finite qpos or qvel shows up in the observation (positions, rotations, cvel).
+        if not np.isfinite(self._obs).all():
+            blown |= ~np.isfinite(self._obs).all(axis=(1, 2))
+        for v in self._root_out.values():
+            if not np.isfinite(v).all():
+                blown |= ~np.isfinite(v).all(axis=1)
+        terminated = self._term | blown
+        self._elapsed += 1
+        truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
+        if blown.any():
+            self._report_blowups(blown if active is None else blown & active)
+            reward[blown] = 0.0
+            self._obs[blown] = np.nan_to_num(self._obs[blown], nan=0.0, posinf=0.0, neginf=0.0)
+            for v in self._root_out.values():
+                v[blown] = np.nan_to_num(v[blown], nan=0.0, posinf=0.0, neginf=0.0)
+            self._blown[:] = False
+        if active is not None:  # sub-envs not stepped keep their state and flags
+            keep = ~active
+            reward[keep] = 0.0
+            terminated[keep] = self._last_terminated[keep]
+            truncated[keep] = self._last_truncated[keep]
+            self._elapsed[keep] -= 1
+        self._last_terminated = terminated
+        self._last_truncated = truncated
+        return self._output(reward, terminated, truncated)
+
+    def _report_blowups(self, blown: np.ndarray) -> None:
+        """One PhysicsBlowupWarning per sub-env and episode."""
+        for i in np.nonzero(blown & ~self._warned)[0]:
+            warnings.warn(
+                f"{self.name}: the physics of robot {self.robots[i].name!r} (sub-env {i}) blew up "
+                f"(non-finite state or a MuJoCo bad-qpos/qvel/qacc warning); its episode is "
+                f"terminated and will restart at the next reset",
+                PhysicsBlowupWarning,
+                stacklevel=4,
+            )
+        self._warned |= blown
+
+    # ------------------------------------------------------------------ public helpers
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        super().close(raise_if_closed=raise_if_closed)
+
+    def sim(self, i: int) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The MjModel and MjData of sub-env ``i``: its live physics (read it, render it, edit it
+        between steps; copies of a robot may share the MjModel). After writing ``qpos``/``qvel``
+        directly, call :meth:`set_state` so that the observation and reward follow."""
+        if not 0 <= i < len(self._sims):
+            raise IndexError(f"{self.name} has {len(self._sims)} sub-envs; no sub-env {i}")
+        s = self._sims[i]
+        return s.model, s.data
+
+    def task_rules(self, i: int) -> TaskRules:
+        """The task rules of sub-env ``i``."""
+        return self._sims[i].rules
+
+    def set_state(
+        self, i: int, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None
+    ) -> None:
+        """Put sub-env ``i`` into a given state (tests, debugging, replaying a start state).
+
+        The next step's reward measures progress from this state; the episode clock is unchanged.
+        """
+        s = self._sims[i]
+        if qpos is not None:
+            s.data.qpos[:] = qpos
+        if qvel is not None:
+            s.data.qvel[:] = qvel
+        s.rules.begin(s.data)
+        self._refresh(s)
+        self._featurize(np.array([i]))
+
+    def observe(self) -> TensorDictBase:
+        """The current observation of all sub-envs (no step, no reset; reward left out)."""
+        return self._output(None, self._last_terminated.copy(), self._last_truncated.copy())
+
+    def sync_render(self, i: int, model: mujoco.MjModel, renderer=None) -> None:
+        """Bring a renderer's private copy ``model`` of sub-env ``i``'s MjModel up to date with
+        per-episode edits (terrain), through the sub-env's :meth:`TaskRules.sync_render`."""
+        self._sims[i].rules.sync_render(model, renderer)
+
+    def __repr__(self) -> str:
+        names = sorted({r.name for r in self.robots})
+        return f"{self.name}(n={self.batch_size[0]}, K={self.max_limbs}, robots={names})"
