@@ -1,100 +1,244 @@
-"""``gcnt params``: parameter counts of every method, actor and critic, like the paper's tables 7-8.
+"""``gcnt params``: parameter counts of every method, actor and critic, next to the paper's
+appendix tables 7 (SMPENV) and 8 (UNIMAL).
 
-gcnt params                    SMPENV sizes (TD3 actor / critic, F=19, A=1, the CWHH++ robots)
-gcnt params --preset unimal    UNIMAL sizes (PPO actor / critic, F=52, A=2, random trees ≤ 12)
+gcnt params                        SMPENV: TD3 actor / critic at the SMPENV preset
+gcnt params --benchmark unimal     UNIMAL: PPO actor / critic at the UNIMAL preset, per world
+                                   (FT / Incline without a height map, MT / Obstacles with one)
 
-Counts depend on the robots only through K (the MLP baseline's input size) and the WL vector
-width. Parameters of the robot table are buffers and are not counted.
+Observation and action widths, worlds and the height-map width come from the benchmark record
+(``gcnt.envs.benchmark.get_benchmark``); while no UNIMAL record is registered, the UNIMAL
+contract's numbers are used (F = 52, A = 2, height map 1410 on MT and Obstacles). Counts depend on
+the robots only through the padding K (SR's input, 12 on UNIMAL) and the WL width. The robot table
+is buffers, never counted. The paper does not say what it counts; what it does count, as far as
+the numbers reveal it:
 
-Against the paper (which does not say what it counts):
-* UNIMAL (table 8) matches actor + critic: MetaMorph* 3,315,075 vs 3,313,183 here for the plain
-  Transformer at the same sizes (-0.06%); GCNT 3,333,583 vs 3,345,185 here, the gap being mostly
-  the WL vector (64 buckets here; the paper's difference suggests about 16).
-* SMPENV (table 7) is about half of one AMORPHEUS actor (202,389 vs 400,404). Its method deltas
-  look like partial counts: SWAT - AMORPHEUS = 8 = Linear(3 -> 2 heads), the relational bias,
-  without the traversal tables; GCNT - AMORPHEUS = 4,224 = Linear(16 + 16 -> 128), the [GCN ‖ WL]
-  projection, without the GCN layers or the distance tables. SMP's 694,410 implies much wider
-  MLPs than the message 32 / hidden 64 used here.
+* MetaMorph / MetaMorph*: actor + critic. Ours at 52 inputs are exactly 2,560 below the paper on
+  every world = 2 networks × 10 inputs × 128: the paper's numbers match 62 inputs.
+* ModuMorph: actor + critic of its public code, which also builds a plain limb embedding
+  Linear(52→128) and a plain decoder it never uses (2 × 6,784 + 258 + 129 = 13,955 on FT/Incline,
+  38,467 with the height-map decoder); ours omits them.
+* GCNT: its overhead over MetaMorph* here is mostly the WL vector (64 buckets into
+  Linear(23 + W → 128)); the paper's difference suggests a much smaller W.
+* MT vs Obstacles: the paper's Obstacles numbers are larger than MT's (MetaMorph +8,320); the
+  original Obstacles world feeds a wider observation. Here both worlds have the same height map.
+* SMPENV (table 7) is about half of one AMORPHEUS actor (202,389 vs 400,404 here) and its method
+  deltas look like partial counts (SWAT − AMORPHEUS = 8 = the relational bias Linear(3→2) only).
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
+from dataclasses import dataclass
 
+import torch
+
+from gcnt.envs.benchmark import get_benchmark
 from gcnt.envs.robot_table import robot_table
 from gcnt.nn import count_parameters, make_network
+from gcnt.nn import keys as K
 from gcnt.nn.synthetic import random_robots, smpenv_like_robots
 
-METHODS = ("smp", "amorpheus", "swat", "gcnt", "gcnt_no_gcn", "gcnt_no_wl", "gcnt_no_dist", "mlp")
+log = logging.getLogger(__name__)
 
-#: paper appendix tables 7 (SMPENV) and 8 (UNIMAL, flat terrain); MetaMorph* is the paper's
-#: closest UNIMAL analogue of the plain Transformer (pre-LN there, post-LN here)
-PAPER = {
-    "smpenv": {"smp": 694_410, "amorpheus": 202_389, "swat": 202_397, "gcnt": 206_613},
-    "unimal": {"amorpheus": 3_315_075, "gcnt": 3_333_583},
+#: methods per benchmark, in the paper's column order
+METHODS = {
+    "smpenv": (
+        "smp",
+        "amorpheus",
+        "swat",
+        "gcnt",
+        "gcnt_no_gcn",
+        "gcnt_no_wl",
+        "gcnt_no_dist",
+        "sr",
+    ),
+    "unimal": ("metamorph", "metamorph_star", "modumorph", "gcnt", "gcnt_hn", "sr"),
+}
+#: the algorithm whose actor/critic the paper trains on each benchmark
+ALGORITHM = {"smpenv": "td3", "unimal": "ppo"}
+#: which of our counts the paper's number is closest to: UNIMAL's are actor + critic; SMPENV's
+#: are at most one actor
+COMPARED = {"smpenv": "actor", "unimal": "total"}
+
+#: the paper's appendix table 7 (SMPENV) and table 8 (UNIMAL, per world)
+PAPER: dict[str, dict[str, dict[str, int]]] = {
+    "smpenv": {
+        "": {"smp": 694_410, "amorpheus": 202_389, "swat": 202_397, "gcnt": 206_613},
+    },
+    "unimal": {
+        "FT": {
+            "metamorph": 3_318_147,
+            "metamorph_star": 3_315_075,
+            "modumorph": 5_232_774,
+            "gcnt": 3_333_583,
+        },
+        "Incline": {
+            "metamorph": 3_318_147,
+            "metamorph_star": 3_315_075,
+            "modumorph": 5_232_774,
+            "gcnt": 3_333_583,
+        },
+        "MT": {
+            "metamorph": 3_531_587,
+            "metamorph_star": 3_528_515,
+            "modumorph": 8_608_262,
+            "gcnt": 3_553_523,
+        },
+        "Obstacles": {
+            "metamorph": 3_539_907,
+            "metamorph_star": 3_536_835,
+            "modumorph": 9_689_862,
+            "gcnt": 3_561_843,
+        },
+    },
+}
+#: world names as benchmark records may spell them -> the paper's column
+_PAPER_WORLD = {
+    "ft": "FT",
+    "flat": "FT",
+    "incline": "Incline",
+    "mt": "MT",
+    "obstacles": "Obstacles",
 }
 
-SETUPS = {
-    # preset: (obs_dim, num_actions, actor role, critic role)
-    "smpenv": (19, 1, "td3_actor", "td3_critic"),
-    "unimal": (52, 2, "ppo_actor", "ppo_critic"),
-}
+#: the UNIMAL contract, used while no "unimal" benchmark record is registered
+UNIMAL_FALLBACK = dict(
+    limb_obs_dim=52,
+    action_slots=2,
+    worlds=("FT", "Incline", "MT", "Obstacles"),
+    hfield_worlds=("MT", "Obstacles"),
+    hfield_dim=1410,
+)
+#: UNIMAL robot tables: 12 limb slots, 35 context numbers per limb
+UNIMAL_MAX_LIMBS = 12
+UNIMAL_CONTEXT_DIM = 35
+
+
+@dataclass(frozen=True)
+class Setup:
+    benchmark: str
+    preset: str
+    obs_dim: int
+    num_actions: int
+    #: (world, height-map width) pairs; one ("", 0) for a benchmark without worlds
+    worlds: tuple[tuple[str, int], ...]
+
+
+def setup_of(benchmark: str) -> Setup:
+    """Widths and worlds of ``benchmark`` from its record (UNIMAL: the contract's numbers while
+    no record is registered)."""
+    try:
+        b = get_benchmark(benchmark)
+    except ValueError:
+        if benchmark != "unimal":
+            raise
+        log.warning("no 'unimal' benchmark record registered: using F=52, A=2, height map 1410")
+        f = UNIMAL_FALLBACK
+        worlds = tuple((w, f["hfield_dim"] if w in f["hfield_worlds"] else 0) for w in f["worlds"])
+        return Setup("unimal", "unimal", f["limb_obs_dim"], f["action_slots"], worlds)
+    worlds = tuple((w, b.hfield_dim if w in b.hfield_worlds else 0) for w in b.worlds) or (("", 0),)
+    return Setup(b.name, b.preset, b.limb_obs_dim, b.action_slots, worlds)
+
+
+def counting_table(setup: Setup):
+    """A robot table with the benchmark's padding (and a zero context for UNIMAL)."""
+    if setup.benchmark == "smpenv":
+        return robot_table(smpenv_like_robots(), None, setup.num_actions)
+    table = robot_table(random_robots([12, 7, 9, 10], seed=0), UNIMAL_MAX_LIMBS, setup.num_actions)
+    table.set(K.CONTEXT, torch.zeros(*table.batch_size, UNIMAL_MAX_LIMBS, UNIMAL_CONTEXT_DIM))
+    return table
+
+
+def count_table(benchmark: str = "smpenv") -> list[dict]:
+    """One row per (world, method): actor, critic, their sum and the paper's number (or None)."""
+    setup = setup_of(benchmark)
+    algo = ALGORITHM.get(setup.benchmark, "ppo")
+    table = counting_table(setup)
+    paper = PAPER.get(setup.benchmark, {})
+    rows = []
+    for world, hfield in setup.worlds:
+        col = paper.get(_PAPER_WORLD.get(world.lower(), world), {})
+        for name in METHODS.get(setup.benchmark, METHODS["unimal"]):
+            kw = dict(
+                table=table,
+                obs_dim=setup.obs_dim,
+                num_actions=setup.num_actions,
+                preset=setup.preset,
+                hfield_dim=hfield,
+            )
+            actor = count_parameters(make_network(name, f"{algo}_actor", **kw))
+            critic = count_parameters(make_network(name, f"{algo}_critic", **kw))
+            rows.append(
+                {
+                    "world": world,
+                    "method": name,
+                    "actor": actor,
+                    "critic": critic,
+                    "total": actor + critic,
+                    "paper": col.get(name),
+                }
+            )
+    return rows
+
+
+def ratios(rows: list[dict], world: str) -> dict[str, tuple[float, float | None]]:
+    """ModuMorph/GCNT and GCNT/MetaMorph* (actor + critic), ours and the paper's."""
+    by = {r["method"]: r for r in rows if r["world"] == world}
+    pairs = (
+        ("ModuMorph/GCNT", "modumorph", "gcnt"),
+        ("GCNT/MetaMorph*", "gcnt", "metamorph_star"),
+        ("GCNT/AMORPHEUS", "gcnt", "amorpheus"),
+    )
+    out = {}
+    for label, a, b in pairs:
+        if a in by and b in by:
+            pa, pb = by[a]["paper"], by[b]["paper"]
+            out[label] = (by[a]["total"] / by[b]["total"], pa / pb if pa and pb else None)
+    return out
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--preset",
-        choices=sorted(SETUPS),
+        "--benchmark",
         default="smpenv",
-        help="network sizes and observation/action widths (default: smpenv)",
+        help="benchmark whose widths and preset to count at: smpenv (default) or unimal",
     )
-
-
-def count_table(preset: str) -> list[dict]:
-    obs_dim, num_actions, actor_role, critic_role = SETUPS[preset]
-    if preset == "smpenv":
-        robots = smpenv_like_robots()
-    else:
-        robots = random_robots([12, 7, 9, 10], seed=0)
-    table = robot_table(robots, None, num_actions)
-    rows = []
-    for name in METHODS:
-        kw = dict(table=table, obs_dim=obs_dim, num_actions=num_actions, preset=preset)
-        actor = count_parameters(make_network(name, actor_role, **kw))
-        critic = count_parameters(make_network(name, critic_role, **kw))
-        rows.append(
-            {"method": name, "actor": actor, "critic": critic, "paper": PAPER[preset].get(name)}
-        )
-    return rows
 
 
 def run(args: argparse.Namespace) -> int:
-    obs_dim, num_actions, actor_role, critic_role = SETUPS[args.preset]
-    rows = count_table(args.preset)
-    base = next(r for r in rows if r["method"] == "amorpheus")
-    twin = " (one of TD3's twin critics)" if critic_role == "td3_critic" else ""
+    setup = setup_of(args.benchmark)
+    algo = ALGORITHM.get(setup.benchmark, "ppo")
+    rows = count_table(args.benchmark)
+    twin = " (one of TD3's twin critics)" if algo == "td3" else ""
     print(
-        f"preset {args.preset}: F={obs_dim}, A={num_actions}; actor = {actor_role}, "
-        f"critic = {critic_role}{twin}"
+        f"benchmark {setup.benchmark}: preset {setup.preset}, F={setup.obs_dim}, "
+        f"A={setup.num_actions}; actor = {algo}_actor, critic = {algo}_critic{twin}"
     )
+    compared = COMPARED.get(setup.benchmark, "total")
+    rel_name = "actor/paper" if compared == "actor" else "ours/paper"
     head = (
-        f"{'method':<14}{'actor':>12}{'critic':>12}{'actor+critic':>14}"
-        f"{'vs AMORPHEUS':>14}{'paper':>12}"
+        f"{'world':<10}{'method':<16}{'actor':>12}{'critic':>12}{'actor+critic':>14}"
+        f"{'paper':>12}{rel_name:>12}"
     )
-    print(head)
-    print("-" * len(head))
-    for r in rows:
-        rel = f"{r['actor'] / base['actor'] - 1:+.1%}"
-        paper = f"{r['paper']:,}" if r["paper"] else "-"
-        both = r["actor"] + r["critic"]
-        print(
-            f"{r['method']:<14}{r['actor']:>12,}{r['critic']:>12,}{both:>14,}{rel:>14}{paper:>12}"
-        )
+    for world, hfield in setup.worlds:
+        print()
+        if world:
+            print(f"world {world}" + (f" (height map {hfield})" if hfield else ""))
+        print(head)
+        print("-" * len(head))
+        for r in (r for r in rows if r["world"] == world):
+            paper = f"{r['paper']:,}" if r["paper"] else "-"
+            rel = f"{r[compared] / r['paper']:.3f}" if r["paper"] else "-"
+            print(
+                f"{world or '-':<10}{r['method']:<16}{r['actor']:>12,}{r['critic']:>12,}"
+                f"{r['total']:>14,}{paper:>12}{rel:>12}"
+            )
+        for label, (ours, theirs) in ratios(rows, world).items():
+            t = f"{theirs:.3f}" if theirs else "-"
+            print(f"{label} (actor + critic): {ours:.3f} here, {t} in the paper")
     print(
-        "vs AMORPHEUS: actor size relative to the AMORPHEUS actor. paper: appendix table "
-        f"{7 if args.preset == 'smpenv' else 8}"
-        + ("" if args.preset == "smpenv" else " (flat terrain; 'amorpheus' row: MetaMorph*)")
-        + "; the paper does not state what it "
-        "counts."
+        "\npaper: appendix table 7 (SMPENV) / 8 (UNIMAL); it does not say what it counts "
+        "(see `gcnt params --help` and this command's module docstring)."
     )
     return 0

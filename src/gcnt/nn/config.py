@@ -166,7 +166,14 @@ class GCNTConfig(TransformerConfig):
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
         "smpenv": {},  # appendix table 1
-        "unimal": {"layers": 5, "ff": 1024, "gcn_width": 23},  # appendix table 3
+        # appendix table 3; on UNIMAL GCNT sits on MetaMorph*'s backbone (pre-LN, no final LN)
+        "unimal": {
+            "layers": 5,
+            "ff": 1024,
+            "gcn_width": 23,
+            "norm_first": True,
+            "final_norm": False,
+        },
     }
 
     def __post_init__(self) -> None:

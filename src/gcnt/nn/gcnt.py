@@ -54,7 +54,9 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
         ctx_dim = context_width(table, "GCNT+HN")
         hyper = cfg.hn_width
         stages.append(("hn_context", context_stage(ctx_dim, (hyper, hyper), K.HN_CONTEXT, True)))
-        stages.append(("encoder", hyper_encoder_stage(hyper, io.in_dim, cfg.d_model, cfg.input_scale)))
+        stages.append(
+            ("encoder", hyper_encoder_stage(hyper, io.in_dim, cfg.d_model, cfg.input_scale))
+        )
         static.append(K.CONTEXT)
     else:
         encoder = limb_encoder_stage(io.in_dim, cfg.d_model, cfg.encoder_hidden, cfg.input_scale)

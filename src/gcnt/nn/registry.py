@@ -110,7 +110,9 @@ register_network("gcnt", GCNTConfig, gcnt_backbone, description="GCNT")
 register_network("gcnt_no_gcn", GCNTConfig, gcnt_backbone, fixed={"use_gcn": False})
 register_network("gcnt_no_wl", GCNTConfig, gcnt_backbone, fixed={"use_wl": False})
 register_network("gcnt_no_dist", GCNTConfig, gcnt_backbone, fixed={"use_dist_bias": False})
-register_network("gcnt_hn", GCNTConfig, gcnt_backbone, fixed={"hypernet": True}, description="GCNT+HN")
+register_network(
+    "gcnt_hn", GCNTConfig, gcnt_backbone, fixed={"hypernet": True}, description="GCNT+HN"
+)
 register_network("amorpheus", AmorpheusConfig, amorpheus_backbone, description="AMORPHEUS")
 register_network("swat", SWATConfig, swat_backbone, description="SWAT")
 register_network("smp", SMPConfig, smp_backbone, description="SMP")

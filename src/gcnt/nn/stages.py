@@ -452,7 +452,9 @@ def limb_head_stage(
     if ``hfield_width``) → ``limbs/out``; per-limb generated weights if ``hyper_dim`` (the
     hypernetwork context width, read from ``limbs/hn_context``)."""
     hidden = (DECODER_HIDDEN,) if hfield_width else ()
-    in_keys = [K.FEATURES] + ([K.INPUT] if raw_dim else []) + ([K.HFIELD_EMBED] if hfield_width else [])
+    in_keys = (
+        [K.FEATURES] + ([K.INPUT] if raw_dim else []) + ([K.HFIELD_EMBED] if hfield_width else [])
+    )
     kw = dict(raw_dim=raw_dim, hfield_width=hfield_width, hidden=hidden)
     if hyper_dim:
         return TensorDictModule(
