@@ -45,11 +45,24 @@ def test_bench_env_command(capsys):
     parser = argparse.ArgumentParser()
     bench_env.add_arguments(parser)
     args = parser.parse_args(
-        ["--robots", "walker_2_main", "cheetah_3_back", "--steps", "20", "--rounds", "1", "--json"]
+        ["--benchmark", "smpenv", "--robots", "walker_2_main", "cheetah_3_back", "--steps", "20"]
+        + ["--rounds", "1", "--json"]
     )
     assert bench_env.run(args) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert result["robots"] == 2
+    assert result["robots"] == 2 and result["benchmark"] == "smpenv"
     assert result["env_steps_per_s"] > 0 and result["raw_steps_per_s"] > 0
     ratio = result["env_steps_per_s"] / result["raw_steps_per_s"]
     assert result["ratio"] == pytest.approx(ratio, rel=1e-2)
+
+
+def test_bench_env_unknown_benchmark():
+    import argparse
+
+    from gcnt.commands import bench_env
+
+    parser = argparse.ArgumentParser()
+    bench_env.add_arguments(parser)
+    args = parser.parse_args(["--benchmark", "smpenvv", "--robots", "walker_2_main"])
+    with pytest.raises(ValueError, match="did you mean|smpenv"):
+        bench_env.run(args)

@@ -1,14 +1,16 @@
-"""``gcnt bench-env``: SMPEnv throughput against the physical limit of raw ``mj_step``.
+"""``gcnt bench-env``: a benchmark's batched env against the physical limit of raw ``mj_step``.
 
-Measures, in one run and interleaved round by round (so that load from other processes hits both
-alike):
+The env is built through the benchmark registry (``--benchmark``, default smpenv:
+``get_benchmark(name).make_env``). Measures, in one run and interleaved round by round (so that
+load from other processes hits both alike):
 
-(a) env steps/s of :class:`~gcnt.envs.SMPEnv` — sub-env control steps per second (N × batched
-    steps), with observations, uniform random actions, rewards, terminations and the partial resets
-    of ``step_and_maybe_reset`` (the path a collector takes);
-(b) raw steps/s — a plain single-threaded loop over the same robots' ``MjData``: random controls,
-    ``mj_step`` × frame_skip, and ``mj_resetData`` when the robot's healthy test fails or the time
-    limit is reached (so that both loops simulate comparable states). No observations, no torch.
+(a) env steps/s — sub-env control steps per second (N × batched steps), with observations,
+    uniform random actions, rewards, terminations and the partial resets of
+    ``step_and_maybe_reset`` (the path a collector takes);
+(b) raw steps/s — a plain single-threaded loop over the same robots' ``MjData`` (same models and
+    frame skip): random controls, ``mj_step`` × frame_skip, and ``mj_resetData`` when the env's
+    task rules end the episode or the time limit is reached (so that both loops simulate
+    comparable states). No observations, no torch.
 
 and prints both and their ratio (env / raw; above 1 means the env's threads hide featurisation and
 TorchRL overhead behind parallel physics).
@@ -30,6 +32,12 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--benchmark", default="smpenv", help="benchmark whose env to measure (default smpenv)"
+    )
+    p.add_argument(
+        "--world", default=None, help="the benchmark's world, if it has several (default: its own)"
+    )
     p.add_argument(
         "--robots",
         nargs="+",
@@ -61,14 +69,13 @@ class _RawLoop:
     """The same robots as plain MjData, stepped one after another on one thread."""
 
     def __init__(self, env, seed: int):
-        from gcnt.envs.tasks import root_joints, task_rules
-
         self.items = []
         for i, r in enumerate(env.robots):
             model = env.sim(i)[0]
             data = mujoco.MjData(model)
-            rules, root = task_rules(r), root_joints(r, model)
-            self.items.append((model, data, data.ctrl, data.qpos, rules, root.z, root.pitch))
+            rules = env.rules_factory(r, model, float(env.dt[i]))
+            rules.begin(data)
+            self.items.append((model, data, data.ctrl, rules))
         self.frame_skip = env.frame_skip
         self.limit = env.max_episode_steps
         self.elapsed = np.zeros(len(self.items), np.int64)
@@ -80,26 +87,29 @@ class _RawLoop:
         fs, step, reset = self.frame_skip, mujoco.mj_step, mujoco.mj_resetData
         t = time.perf_counter()
         for s in range(steps):
-            for j, (m, d, ctrl, qpos, rules, iz, ip) in enumerate(self.items):
+            for j, (m, d, ctrl, rules) in enumerate(self.items):
                 ctrl[:] = self.ctrls[j][s % 64]
                 step(m, d, fs)
                 self.elapsed[j] += 1
-                if not rules.healthy(qpos[iz], qpos[ip]) or self.elapsed[j] >= self.limit:
+                if rules.step(d, 0.0)[1] or self.elapsed[j] >= self.limit:
                     reset(m, d)
+                    rules.begin(d)
                     self.elapsed[j] = 0
                     self.resets += 1
         return time.perf_counter() - t
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt.envs.smpenv import SMPEnv
+    from gcnt.envs.benchmark import get_benchmark
     from gcnt.morphology.benchmarks import resolve_robots
 
+    bench = get_benchmark(args.benchmark)
     robots = resolve_robots(args.robots) * args.copies
-    env = SMPEnv(robots, seed=args.seed, num_threads=args.threads)
+    env = bench.make_env(robots, seed=args.seed, num_threads=args.threads, world=args.world)
     n = len(robots)
     gen = torch.Generator().manual_seed(args.seed)
-    actions = torch.rand((64, n, env.max_limbs, 1), generator=gen) * 2 - 1
+    shape = env.action_spec["limbs", "action"].shape
+    actions = torch.rand((64, *shape), generator=gen) * 2 - 1
     raw = _RawLoop(env, args.seed)
 
     td = env.reset()
@@ -115,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     multi = sum(v for k, v in used.items() if k > 1) / max(1, sum(used.values()))
     env_med, raw_med = statistics.median(env_rates), statistics.median(raw_rates)
     result = {
+        "benchmark": bench.name,
         "robots": n,
         "distinct_robots": len(env.distinct_robots),
         "max_limbs": env.max_limbs,
@@ -134,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result))
     else:
         print(
-            f"SMPEnv: {n} sub-envs ({result['distinct_robots']} distinct robots), K={env.max_limbs}, "
+            f"{env.name} ({bench.name}): {n} sub-envs ({result['distinct_robots']} distinct robots), K={env.max_limbs}, "
             f"up to {env.num_threads} threads ({multi:.0%} of steps used more than one), "
             f"frame_skip {env.frame_skip}; median of {args.rounds} "
             f"interleaved rounds of {args.steps} batched steps\n"

@@ -367,6 +367,9 @@ class BatchedMujocoEnv(EnvBase):
         self.max_episode_steps = int(max_episode_steps)
         self.frame_skip = int(frame_skip)
         self.action_slots = a_slots = int(action_slots)
+        #: builds one sub-env's TaskRules, ``rules_factory(robot, model, dt)`` (e.g. for a loop
+        #: that steps the same robots outside the env)
+        self.rules_factory = rules
 
         # Distinct robots and their models.
         distinct: dict[tuple[str, str], int] = {}
