@@ -1,0 +1,259 @@
+"""Find run directories and read what they hold, defensively (the recipe is read as a plain dict).
+
+A run directory, as ``gcnt train`` writes it::
+
+    recipe.yaml            the resolved recipe
+    metrics.jsonl          one JSON row per log step: env_steps, train_return/mean, ...
+    checkpoints/last.pt    the latest checkpoint
+    eval/*.json            evaluations: {"env_steps": N, "robots": {name: {"mean", ...}}, ...}
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+RECIPE_FILE = "recipe.yaml"
+METRICS_FILE = "metrics.jsonl"
+CHECKPOINT = "checkpoints/last.pt"
+
+#: the order methods are listed and coloured in (others follow, sorted)
+METHOD_ORDER = (
+    "gcnt",
+    "gcnt_no_gcn",
+    "gcnt_no_wl",
+    "gcnt_no_dist",
+    "swat",
+    "amorpheus",
+    "smp",
+    "mlp",
+)
+
+
+class AnalysisError(ValueError):
+    """Run directories that cannot give what was asked; the message names the path."""
+
+
+@dataclass(frozen=True)
+class EvalRecord:
+    """One evaluation file of a run."""
+
+    path: Path
+    #: what was evaluated: the file name without ``step<N>`` ("" for training's own evaluations)
+    label: str
+    env_steps: int
+    #: robot name -> {"mean", "stderr", "episodes", "returns"}
+    robots: dict[str, dict[str, Any]]
+    #: extra keys (robots_spec, episodes, seed, deterministic, ...) when the file has them
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def matches(self, name: str) -> bool:
+        """True if ``name`` is this evaluation's label or part of its robot specification."""
+        if name == self.label or (name == "training" and self.label == ""):
+            return True
+        spec = self.meta.get("robots_spec") or []
+        spec = [spec] if isinstance(spec, str) else list(spec)
+        return any(name == s or name in str(s).split(":") for s in spec)
+
+
+_STEP = re.compile(r"^(?P<label>.*?)[-_]?step(?P<steps>\d+)$")
+
+
+def _get(d: Any, *path: str, default: Any = None) -> Any:
+    for p in path:
+        if not isinstance(d, dict) or p not in d:
+            return default
+        d = d[p]
+    return d
+
+
+class Run:
+    """A run directory, read lazily."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not (self.path / RECIPE_FILE).is_file():
+            raise AnalysisError(f"{self.path}: no {RECIPE_FILE}; is this a gcnt run directory?")
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.path)!r}, {self.task}, {self.method}, seed {self.seed})"
+
+    @cached_property
+    def recipe(self) -> dict[str, Any]:
+        path = self.path / RECIPE_FILE
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except (OSError, yaml.YAMLError) as e:
+            raise AnalysisError(f"{path}: cannot read the recipe ({e})") from e
+        if not isinstance(data, dict):
+            raise AnalysisError(f"{path}: the recipe is not a mapping")
+        return data
+
+    # --- identity (new field names first, then the old ones)
+    @property
+    def task(self) -> str:
+        return str(self.recipe.get("task") or self.recipe.get("benchmark") or "custom")
+
+    @property
+    def algo(self) -> str:
+        return str(self.recipe.get("algo") or "td3")
+
+    @property
+    def method(self) -> str:
+        return str(_get(self.recipe, "network", "name", default="?"))
+
+    @property
+    def seed(self) -> int:
+        return int(self.recipe.get("seed") or 0)
+
+    @property
+    def benchmark(self) -> str:
+        """The env benchmark (smpenv, unimal); old recipes had none: smpenv."""
+        return str(_get(self.recipe, "env", "benchmark", default=None) or "smpenv")
+
+    @property
+    def total_frames(self) -> int | None:
+        value = _get(self.recipe, "collector", "total_frames")
+        return int(value) if value is not None else None
+
+    @property
+    def train_robot_specs(self) -> list[str]:
+        return list(_get(self.recipe, "env", "robots", default=[]) or [])
+
+    @property
+    def test_robot_specs(self) -> list[str]:
+        return list(_get(self.recipe, "env", "test_robots", default=[]) or [])
+
+    # --- metrics
+    def metrics(self) -> list[dict[str, Any]]:
+        """Rows of ``metrics.jsonl`` (a torn last line, from a run killed mid-write, is skipped)."""
+        path = self.path / METRICS_FILE
+        if not path.exists():
+            return []
+        rows = []
+        for line in path.read_text().splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(row, dict) and "env_steps" in row:
+                rows.append(row)
+        return rows
+
+    def last_env_steps(self) -> int:
+        rows = self.metrics()
+        return int(rows[-1]["env_steps"]) if rows else 0
+
+    def has_checkpoint(self) -> bool:
+        return (self.path / CHECKPOINT).is_file()
+
+    def finished(self) -> bool:
+        """The run logged its last step (``collector.total_frames``) and saved a checkpoint."""
+        total = self.total_frames
+        return total is not None and self.has_checkpoint() and self.last_env_steps() >= total
+
+    # --- evaluations
+    def evals(self) -> list[EvalRecord]:
+        out = []
+        for path in sorted((self.path / "eval").glob("*.json")):
+            try:
+                data = json.loads(path.read_text())
+            except (OSError, json.JSONDecodeError):
+                continue
+            if not isinstance(data, dict) or not isinstance(data.get("robots"), dict):
+                continue
+            m = _STEP.match(path.stem)
+            label = m.group("label") if m else path.stem
+            steps = data.get("env_steps")
+            if steps is None and m:
+                steps = int(m.group("steps"))
+            meta = {k: v for k, v in data.items() if k not in ("robots", "env_steps")}
+            out.append(EvalRecord(path, label, int(steps or 0), data["robots"], meta))
+        return out
+
+    def test_robot_names(self) -> list[str]:
+        """Names of the recipe's test robots, resolved through the robot catalogues."""
+        return _robot_names(self.test_robot_specs)
+
+    def train_robot_names(self) -> list[str]:
+        names = _robot_names(self.train_robot_specs)
+        if names:
+            return names
+        rows = self.metrics()
+        row = rows[-1] if rows else {}
+        return [
+            k.split("/", 1)[1]
+            for k in sorted(row)
+            if k.startswith("train_return/") and k != "train_return/mean"
+        ]
+
+
+def _robot_names(specs: Sequence[str]) -> list[str]:
+    if not specs:
+        return []
+    from gcnt.morphology.benchmarks import resolve_robots
+
+    try:
+        return list(dict.fromkeys(r.name for r in resolve_robots(list(specs))))
+    except Exception:  # noqa: BLE001 - a robot file that moved: fall back to what evals name
+        return []
+
+
+def find_runs(paths: Iterable[str | Path]) -> list[Run]:
+    """Every run directory in ``paths`` (run directories, or folders searched recursively)."""
+    runs: dict[Path, Run] = {}
+    paths = list(paths)
+    for p in map(Path, paths):
+        if not p.exists():
+            raise AnalysisError(f"{p}: no such file or directory")
+        if (p / RECIPE_FILE).is_file():
+            runs[p.resolve()] = Run(p)
+            continue
+        for recipe in sorted(p.rglob(RECIPE_FILE)):
+            if "wandb" in recipe.parts:
+                continue
+            runs.setdefault(recipe.parent.resolve(), Run(recipe.parent))
+    if not runs:
+        raise AnalysisError(
+            f"no run directories (with {RECIPE_FILE}) under {', '.join(map(str, paths))}"
+        )
+    return sorted(runs.values(), key=lambda r: (r.task, method_key(r.method), r.seed, str(r.path)))
+
+
+def method_key(method: str) -> tuple[int, str]:
+    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), method)
+
+
+def method_labels(runs: Sequence[Run]) -> dict[Path, str]:
+    """The name a run's method is shown under: the method, prefixed by the algorithm when the
+    runs mix algorithms (``ppo:gcnt``)."""
+    mixed = len({r.algo for r in runs}) > 1
+    return {r.path: f"{r.algo}:{r.method}" if mixed else r.method for r in runs}
+
+
+def mean_stderr(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and standard error (n-1); the error is nan for one value."""
+    xs = [float(v) for v in values]
+    n = len(xs)
+    if n == 0:
+        return math.nan, math.nan
+    mean = sum(xs) / n
+    if n == 1:
+        return mean, math.nan
+    var = sum((x - mean) ** 2 for x in xs) / (n - 1)
+    return mean, math.sqrt(var / n)
+
+
+def default_out(paths: Sequence[str | Path]) -> Path:
+    """Where figures go by default: ``<dir>/figures`` for one directory given, else ``figures``."""
+    if len(paths) == 1 and Path(paths[0]).is_dir():
+        return Path(paths[0]) / "figures"
+    return Path("figures")

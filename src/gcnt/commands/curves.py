@@ -1,0 +1,48 @@
+"""``gcnt curves DIR...``: learning curves (paper figures 6, 7, 9) from run directories.
+
+One panel per task, one line per method: mean ± standard error over seeds against environment
+steps, seeds aggregated at equal step counts by interpolation. Writes ``curves.png`` and
+``curves.csv`` (to ``--out``, default ``<DIR>/figures``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("paths", nargs="+", metavar="DIR", help="run or sweep directories")
+    p.add_argument("--metric", default="train_return/mean", help="metrics.jsonl column to plot")
+    p.add_argument("--points", type=int, default=100, help="grid points per curve (default 100)")
+    p.add_argument("--smooth", type=int, default=1, help="moving average over N log rows (off)")
+    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument("--name", default="curves", help="file name stem (default: curves)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcnt.analysis.curves import learning_curves, plot_curves, write_csv
+    from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+
+    try:
+        runs = find_runs(args.paths)
+        rows = learning_curves(runs, args.metric, args.points, max(1, args.smooth))
+    except AnalysisError as e:
+        log.error("%s", e)
+        return 2
+    out = args.out or default_out(args.paths)
+    png = plot_curves(rows, out / f"{args.name}.png", args.metric)
+    csv = write_csv(rows, out / f"{args.name}.csv")
+    groups = sorted({(r["task"], r["method"], r["seeds"]) for r in rows})
+    for task, method, seeds in groups:
+        last = [r for r in rows if r["task"] == task and r["method"] == method][-1]
+        se = f" ± {last['stderr']:.1f}" if last["stderr"] == last["stderr"] else ""
+        print(
+            f"{task:<12} {method:<14} seeds {seeds}  at {last['env_steps']:>9} steps: "
+            f"{last['mean']:.1f}{se}"
+        )
+    print(f"written: {png}\nwritten: {csv}")
+    return 0

@@ -1,0 +1,75 @@
+"""``gcnt embed [RUN_DIR...] [--untrained gcnt,swat]``: t-SNE of per-limb structural vectors
+(paper figure 10): GCNT's projected [GCN ‖ WL] features and SWAT's traversal embeddings of every
+limb of the CWHH++ robots, colour = limb type, marker = robot, side by side.
+
+Runs give trained networks (in a sweep directory, the first seed of each GCNT/SWAT method);
+without runs, or with ``--untrained``, freshly initialised networks. Writes ``embed.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("paths", nargs="*", metavar="DIR", help="run or sweep directories")
+    p.add_argument(
+        "--untrained",
+        type=lambda s: [m.strip() for m in s.split(",") if m.strip()],
+        default=None,
+        help="also (or only) untrained networks of these methods (default without runs: gcnt,swat)",
+    )
+    p.add_argument("--robots", nargs="+", default=["CWHH++:all"], help="robots (CWHH++:all)")
+    p.add_argument("--all-seeds", action="store_true", help="a panel per run, not per method")
+    p.add_argument("--seed", type=int, default=0, help="t-SNE (and untrained init) seed")
+    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument("--name", default="embed", help="file name stem (default: embed)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from gcnt.analysis.embed import STRUCTURAL_METHODS, plot_embeddings, run_embedding
+    from gcnt.analysis.embed import structural_vectors as vectors
+    from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+
+    embeddings = []
+    try:
+        if args.paths:
+            runs = [r for r in find_runs(args.paths) if r.method in STRUCTURAL_METHODS]
+            if not runs and args.untrained is None:
+                raise AnalysisError(
+                    f"no GCNT or SWAT run in {', '.join(args.paths)} "
+                    f"(methods with structural vectors: {', '.join(STRUCTURAL_METHODS)})"
+                )
+            seen: set[tuple[str, str]] = set()
+            for r in runs:
+                if not args.all_seeds and (r.task, r.method) in seen:
+                    continue
+                seen.add((r.task, r.method))
+                embeddings.append(run_embedding(r, args.robots))
+        untrained = (
+            args.untrained
+            if args.untrained is not None
+            else ([] if args.paths else ["gcnt", "swat"])
+        )
+        for m in untrained:
+            torch.manual_seed(args.seed)
+            embeddings.append(vectors(m, args.robots, title=f"{m} (untrained)"))
+        if not embeddings:
+            raise AnalysisError("nothing to embed: give runs or --untrained METHODS")
+    except AnalysisError as e:
+        log.error("%s", e)
+        return 2
+    out = args.out or (default_out(args.paths) if args.paths else Path("figures"))
+    png = plot_embeddings(embeddings, out / f"{args.name}.png", seed=args.seed)
+    for e in embeddings:
+        print(
+            f"{e.title}: {len(e.vectors)} limbs of {len(set(e.robots))} robots, d={e.vectors.shape[1]}"
+        )
+    print(f"written: {png}")
+    return 0

@@ -1,0 +1,224 @@
+"""``gcnt sweep RECIPE... [--methods gcnt,swat] [--seeds 0,1,2] [key=value ...]``.
+
+Runs a grid of recipes x methods x seeds as ``gcnt train`` runs under one sweep directory
+(``--dir``, default ``sweeps/<task>``), locally in a pool of pinned slots or on Slurm through
+submitit. Running the same command again (or ``gcnt sweep SWEEP_DIR``) skips finished runs and
+resumes unfinished ones. ``--eval test`` evaluates each trained run on its test robots.
+
+Overrides apply to every run; ``METHOD:key=value`` to one method only
+(e.g. ``swat:network.kwargs.max_limbs=16``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _seeds(text: str) -> list[int]:
+    out: list[int] = []
+    for part in _csv(text):
+        if "-" in part[1:]:
+            a, b = part.split("-", 1)
+            out += list(range(int(a), int(b) + 1))
+        else:
+            out.append(int(part))
+    return out
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = __doc__.split("\n\n")[1]
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = (
+        "examples:\n"
+        "  gcnt sweep recipes/smpenv/walker.yaml --methods gcnt,swat,amorpheus --seeds 0,1,2\n"
+        "  gcnt sweep recipes/smpenv/*.yaml --methods gcnt,swat --seeds 0-2 --eval test\n"
+        "  gcnt sweep sweeps/walkerpp                  # resume: skip done, resume partial\n"
+        "  gcnt sweep sweeps/walkerpp --status\n"
+        "  gcnt sweep recipes/smpenv/cwhh.yaml --seeds 0-3 --slurm --partition gpu \\\n"
+        "      --gpus-per-run 1 --cpus-per-run 8 --time 2880"
+    )
+    p.add_argument(
+        "items",
+        nargs="+",
+        metavar="RECIPE|SWEEP_DIR|key=value",
+        help="recipe files, or one sweep directory to continue; then overrides key=value",
+    )
+    p.add_argument("--methods", type=_csv, help="comma-separated methods (default: the recipe's)")
+    p.add_argument("--seeds", type=_seeds, help="seeds: 0,1,2 or 0-2 (default: the recipe's)")
+    p.add_argument("--dir", type=Path, help="sweep directory (default: sweeps/<task>)")
+    p.add_argument("--group", help="W&B group of all runs (default: the sweep directory's name)")
+    p.add_argument(
+        "--eval",
+        action="append",
+        default=[],
+        metavar="ROBOTS",
+        help="after training, `gcnt eval RUN --robots ROBOTS` (test, train, a robot, "
+        "Benchmark:split); repeatable",
+    )
+    p.add_argument("--episodes", type=int, default=100, help="episodes per robot for --eval (100)")
+    p.add_argument("--status", action="store_true", help="print the manifest's states and exit")
+    p.add_argument("--dry-run", action="store_true", help="write the manifest, print, run nothing")
+    local = p.add_argument_group("local pool")
+    local.add_argument("--jobs", type=int, help="runs at a time (default: cores / cpus-per-run)")
+    local.add_argument(
+        "--cpus-per-run", type=int, default=1, help="cores (and threads) per run (default 1)"
+    )
+    slurm = p.add_argument_group("Slurm (through submitit: one job array, one run per task)")
+    slurm.add_argument("--slurm", action="store_true", help="submit to Slurm instead")
+    slurm.add_argument(
+        "--executor",
+        choices=("slurm", "local", "debug"),
+        help="submitit executor (--slurm: slurm; local/debug run on this machine, for tests)",
+    )
+    slurm.add_argument("--partition", help="Slurm partition")
+    slurm.add_argument("--time", type=int, default=24 * 60, help="minutes per run (default 1440)")
+    slurm.add_argument("--gpus-per-run", type=int, default=0, help="GPUs per run (default 0)")
+    slurm.add_argument("--mem-gb", type=float, help="memory per run")
+    slurm.add_argument("--account", help="Slurm account")
+    slurm.add_argument("--qos", help="Slurm QOS")
+    slurm.add_argument("--constraint", help="Slurm constraint")
+    slurm.add_argument(
+        "--array-parallelism", type=int, default=64, help="array tasks at a time (default 64)"
+    )
+    slurm.add_argument("--no-wait", action="store_true", help="submit and return")
+
+
+def _split_items(items: list[str]) -> tuple[list[str], list[str]]:
+    recipes, overrides = [], []
+    for it in items:
+        (overrides if "=" in it else recipes).append(it)
+    return recipes, overrides
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcnt.analysis.sweep import (
+        MANIFEST,
+        ClusterOptions,
+        Manifest,
+        SweepError,
+        SweepLock,
+        default_jobs,
+        expand,
+        now,
+        run_local,
+        run_submitit,
+        slug,
+    )
+
+    recipes, overrides = _split_items(args.items)
+    try:
+        if len(recipes) == 1 and Path(recipes[0]).is_dir():
+            sweep_dir = Path(recipes[0])
+            if overrides or args.methods or args.seeds:
+                raise SweepError(
+                    f"{sweep_dir}: a sweep directory is continued as it was set up; give recipes "
+                    "to add runs (overrides, --methods and --seeds apply to new runs only)"
+                )
+            manifest = Manifest.load(sweep_dir)
+            if args.eval:
+                for r in manifest.runs:
+                    r.evals = list(dict.fromkeys([*r.evals, *args.eval]))
+                    r.eval_episodes = args.episodes
+        else:
+            bad = [r for r in recipes if not Path(r).is_file()]
+            if bad:
+                raise SweepError(f"no such recipe file: {', '.join(bad)}")
+            if not recipes:
+                raise SweepError("give at least one recipe file (or a sweep directory)")
+            if args.dir is None:
+                from gcnt.recipes import RecipeError, load_recipe
+
+                tasks = []
+                for r in recipes:
+                    try:
+                        rec = load_recipe(r)
+                    except RecipeError as e:
+                        raise SweepError(str(e)) from None
+                    tasks.append(
+                        slug(str(getattr(rec, "task", None) or getattr(rec, "benchmark", "x")))
+                    )
+                args.dir = Path("sweeps") / "-".join(dict.fromkeys(tasks))
+            sweep_dir = args.dir
+            specs = expand(
+                recipes,
+                sweep_dir,
+                methods=args.methods,
+                seeds=args.seeds,
+                overrides=overrides,
+                evals=args.eval,
+                eval_episodes=args.episodes,
+                group=args.group,
+            )
+            if (sweep_dir / MANIFEST).is_file():
+                manifest = Manifest.load(sweep_dir)
+                manifest.merge(specs)
+            else:
+                manifest = Manifest(
+                    sweep_dir, specs, {"created": now(), "command": ["gcnt", *sys.argv[2:]]}
+                )
+        manifest.refresh()
+        if args.status:
+            print(manifest.table())
+            return 0
+        manifest.save()
+        if args.dry_run:
+            print(manifest.table())
+            print(f"manifest: {manifest.path} (dry run: nothing started)")
+            return 0
+        t0 = time.monotonic()
+        with SweepLock(manifest.dir):
+            if args.slurm or args.executor:
+                opts = ClusterOptions(
+                    executor=args.executor or "slurm",
+                    partition=args.partition,
+                    time_min=args.time,
+                    cpus_per_run=args.cpus_per_run,
+                    gpus_per_run=args.gpus_per_run,
+                    mem_gb=args.mem_gb,
+                    array_parallelism=args.array_parallelism,
+                    account=args.account,
+                    qos=args.qos,
+                    constraint=args.constraint,
+                )
+                run_submitit(manifest, opts, wait=not args.no_wait)
+            else:
+                jobs = args.jobs or default_jobs(args.cpus_per_run)
+                todo = sum(1 for r in manifest.runs if not r.complete())
+                print(
+                    f"sweep {manifest.dir}: {len(manifest.runs)} runs, {todo} to do, "
+                    f"{jobs} at a time x {args.cpus_per_run} core(s)",
+                    flush=True,
+                )
+
+                def report(spec) -> None:
+                    print(f"{now()}  {spec.id}: {spec.state}", flush=True)
+
+                run_local(manifest, jobs=jobs, cpus_per_run=args.cpus_per_run, on_change=report)
+    except SweepError as e:
+        log.error("%s", e)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted; run the same command again to resume", file=sys.stderr)
+        return 130
+    manifest.refresh()
+    manifest.save()
+    print(manifest.table())
+    counts = manifest.counts()
+    print(
+        f"manifest: {manifest.path}  ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))}; "
+        f"{time.monotonic() - t0:.0f} s)"
+    )
+    failed = [r for r in manifest.runs if r.state == "failed" or "failed" in r.eval_state.values()]
+    for r in failed:
+        print(f"failed: {r.id} (log: {r.log})", file=sys.stderr)
+    return 1 if failed else 0

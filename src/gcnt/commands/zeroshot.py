@@ -1,0 +1,78 @@
+"""``gcnt zeroshot DIR...``: the zero-shot table (paper table 1) from run directories.
+
+Per test robot, mean ± standard error over seeds of each seed's mean return; the best method of
+each row in bold. Reads the runs' evaluations (``eval/*.json``); ``--evaluate`` first runs
+``gcnt eval RUN --robots test --episodes N`` on every run that has none. Writes
+``zeroshot.md`` and ``zeroshot.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import subprocess
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("paths", nargs="+", metavar="DIR", help="run or sweep directories")
+    p.add_argument("--robots", nargs="+", help="rows (default: the recipes' test robots)")
+    p.add_argument("--label", help="only evaluations with this label / robot spec (default: any)")
+    p.add_argument(
+        "--evaluate",
+        action="store_true",
+        help="first run `gcnt eval RUN --robots test` on runs without a test evaluation",
+    )
+    p.add_argument("--force", action="store_true", help="with --evaluate: evaluate every run")
+    p.add_argument("--episodes", type=int, default=100, help="episodes per robot (default 100)")
+    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+
+
+def _evaluate(runs, episodes: int, force: bool) -> int:
+    import os
+
+    from gcnt.analysis.sweep import gcnt_command, pinned_env
+    from gcnt.analysis.zeroshot import seed_score
+
+    failures = 0
+    for r in runs:
+        names = r.test_robot_names()
+        if not names:
+            log.warning("%s: the recipe has no test robots; skipped", r.path)
+            continue
+        if (
+            not force
+            and all(seed_score(r, n) for n in names)
+            and any(e.matches("test") for e in r.evals())
+        ):
+            continue
+        argv = [*gcnt_command(), "eval", str(r.path), "--robots", "test"]
+        print(f"evaluating {r.path} ...", flush=True)
+        threads = int(os.environ.get("OMP_NUM_THREADS", "1"))
+        rc = subprocess.run(
+            [*argv, "--episodes", str(episodes)], env=pinned_env(threads)
+        ).returncode
+        failures += rc != 0
+    return failures
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+    from gcnt.analysis.zeroshot import to_markdown, write, zero_shot_table
+
+    try:
+        runs = find_runs(args.paths)
+        if args.evaluate and _evaluate(runs, args.episodes, args.force):
+            log.error("some evaluations failed (see above)")
+            return 1
+        table = zero_shot_table(runs, args.robots, args.label)
+    except AnalysisError as e:
+        log.error("%s", e)
+        return 2
+    out = args.out or default_out(args.paths)
+    md, js = write(table, out)
+    print(to_markdown(table))
+    print(f"written: {md}\nwritten: {js}")
+    return 0
