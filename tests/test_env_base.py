@@ -219,6 +219,22 @@ def test_models_shared_unless_rules_edit_them():
     assert env.task_rules(2).renders == 1 and env.task_rules(0).renders == 0
 
 
+def test_root_output_names_may_not_shadow_the_contract():
+    class Clash(ToyFeaturizer):
+        @property
+        def root_outputs(self):
+            return {"reward": 1}
+
+    with pytest.raises(ValueError, match="Clash: root output names"):
+        BatchedMujocoEnv(
+            [two_slot("walker_2_main")],
+            featurizer=Clash,
+            rules=ToyRules,
+            action_slots=SLOTS,
+            frame_skip=2,
+        )
+
+
 def test_robot_table_slots_context_and_errors():
     w = smpenv_robot("walker_3_main")
     t = robot_table([w])  # the original signature still works

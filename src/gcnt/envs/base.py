@@ -459,6 +459,13 @@ class BatchedMujocoEnv(EnvBase):
         self._term = np.zeros(n, bool)
         self._sq = np.zeros(n)
         self._obs = np.zeros((n, k, f.obs_dim), np.float32)
+        reserved = {"morph_id", "limbs", "graph", "reward", "done", "terminated", "truncated"}
+        clash = sorted(set(f.root_outputs) & reserved)
+        if clash or any(k.startswith("_") for k in f.root_outputs):
+            raise ValueError(
+                f"{type(f).__name__}: root output names {sorted(f.root_outputs)} may not be one of "
+                f"{sorted(reserved)} or start with '_'"
+            )
         self._root_out = {
             key: np.zeros((n, int(d)), np.float32) for key, d in f.root_outputs.items()
         }
