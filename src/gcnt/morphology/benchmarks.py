@@ -1,35 +1,55 @@
-"""Benchmarks (named train/test robot sets) and robot look-up by name, file or benchmark.
+"""Robot catalogues, benchmarks (named robot splits) and robot look-up by name, file or benchmark.
 
-The robot files and split files live in the repository's ``morphologies/`` folder, or wherever the
-environment variable ``GCNT_MORPHOLOGIES`` points. ``BENCHMARKS`` (read lazily on first access)
-maps a benchmark name to ``{"train": [...], "test": [...]}``.
+A *catalogue* is one set of robots that gcnt can load by name (SMPENV's 32 robots; UNIMAL's
+generated robots and their variants; or one of your own). It is a small :class:`Catalogue` record:
+its name, the robot names it knows, how to load one, and its benchmark split file. Register your
+own without editing gcnt::
+
+    register_catalogue(Catalogue(name="toy", robot_names=lambda: ["toy_1"], load=load_toy,
+                                 split_file="/path/to/toy.yaml"))
+
+A split file maps a benchmark name to its splits: ``train`` (required), ``test``, and any
+``variants-<kind>`` lists. Names, ``Benchmark:split`` specs, ``.xml`` paths and folders of ``.xml``
+files resolve through every catalogue (:func:`resolve_robots`).
+
+Robot and split files live in the repository's ``morphologies/`` folder, or wherever the
+environment variable ``GCNT_MORPHOLOGIES`` points.
 """
 
 from __future__ import annotations
 
-import difflib
 import functools
+import importlib
 import os
-from collections.abc import Sequence
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from gcnt.morphology.robot import Robot, load_robot
-from gcnt.morphology.smpenv import SMPENV_ROBOTS
+from gcnt.morphology.smpenv import SMPENV_ROBOTS, build_mjcf, write_all
+from gcnt.suggest import did_you_mean
 
 #: Environment variable that overrides the location of the ``morphologies/`` folder.
 MORPHOLOGIES_ENV = "GCNT_MORPHOLOGIES"
-#: The benchmark split file inside the morphologies folder.
+#: The SMPENV benchmark split file inside the morphologies folder.
 SMPENV_BENCHMARKS_FILE = "smpenv.yaml"
-#: Splits of every benchmark; ``Benchmark:all`` in :func:`resolve_robots` means train + test.
+#: The two main splits; ``Benchmark:all`` in :func:`resolve_robots` means train + test.
 SPLITS: tuple[str, ...] = ("train", "test")
+#: Further split names a split file may declare: ``variants-<kind>``.
+VARIANT_SPLIT = re.compile(r"^variants-[a-z0-9_]+$")
 DEFAULT_SPLIT = "train"
 
 
 class UnknownRobotError(ValueError):
     """A robot or benchmark name that is not known; the message lists close matches."""
+
+
+class DuplicateRobotError(ValueError):
+    """The same robot named twice in one robot list."""
 
 
 class BenchmarkFileError(ValueError):
@@ -50,40 +70,180 @@ def morphologies_dir() -> Path:
     return path
 
 
-def _close(name: str, candidates: Sequence[str]) -> str:
-    close = difflib.get_close_matches(name, candidates, n=5, cutoff=0.5)
-    return f"; did you mean {', '.join(close)}?" if close else ""
+# ------------------------------------------------------------------------------ catalogues
 
 
-def _validate(raw: Any, source: Path) -> dict[str, dict[str, list[str]]]:
+@dataclass(frozen=True)
+class Catalogue:
+    """One set of robots gcnt can load by name."""
+
+    #: registry name, also ``Robot.catalogue`` of its robots
+    name: str
+    #: every robot name ``load`` accepts (called when names are resolved; keep it cheap)
+    robot_names: Callable[[], Sequence[str]]
+    #: the robot of a name (the registry caches the result)
+    load: Callable[[str], Robot]
+    #: its benchmark split file; a relative path is inside :func:`morphologies_dir`
+    split_file: str | Path | None = None
+    #: write the catalogue's files under a morphologies folder; returns the paths written
+    rebuild: Callable[[Path], list[Path]] | None = None
+    #: problems of the catalogue's files under a morphologies folder (empty: all current)
+    check: Callable[[Path], list[str]] | None = None
+    description: str = ""
+
+    def split_path(self) -> Path | None:
+        if self.split_file is None:
+            return None
+        path = Path(self.split_file)
+        return path if path.is_absolute() else morphologies_dir() / path
+
+
+_REGISTRY: dict[str, Catalogue] = {}
+#: built-in catalogues, imported on first use
+_BUILTIN: dict[str, str] = {
+    "smpenv": "gcnt.morphology.benchmarks:SMPENV_CATALOGUE",
+    "unimal": "gcnt.morphology.unimal.catalogue:UNIMAL_CATALOGUE",
+}
+
+
+def _clear_caches() -> None:
+    _name_index.cache_clear()
+    _load.cache_clear()
+    _read_benchmarks.cache_clear()
+
+
+def register_catalogue(catalogue: Catalogue, *, replace: bool = False) -> Catalogue:
+    """Make ``catalogue`` resolvable (``replace`` to redefine one of the same name)."""
+    if not replace and (catalogue.name in _REGISTRY or catalogue.name in _BUILTIN):
+        raise ValueError(f"catalogue {catalogue.name!r} is already registered")
+    _REGISTRY[catalogue.name] = catalogue
+    _clear_caches()
+    return catalogue
+
+
+def unregister_catalogue(name: str) -> None:
+    """Forget catalogue ``name`` (tests use it to remove a toy catalogue)."""
+    _REGISTRY.pop(name, None)
+    _clear_caches()
+
+
+def catalogue_names() -> list[str]:
+    return list(dict.fromkeys([*_BUILTIN, *_REGISTRY]))
+
+
+def get_catalogue(name: str) -> Catalogue:
+    """The catalogue ``name``; a ValueError with close matches otherwise."""
+    if name not in _REGISTRY and name in _BUILTIN:
+        module, attr = _BUILTIN[name].split(":")
+        _REGISTRY.setdefault(name, getattr(importlib.import_module(module), attr))
+    if name not in _REGISTRY:
+        raise ValueError(
+            f"unknown catalogue {name!r}{did_you_mean(name, catalogue_names())} "
+            f"(known: {', '.join(catalogue_names())})"
+        )
+    return _REGISTRY[name]
+
+
+def catalogues() -> list[Catalogue]:
+    return [get_catalogue(n) for n in catalogue_names()]
+
+
+@functools.lru_cache(maxsize=1)
+def _name_index() -> dict[str, str]:
+    index: dict[str, str] = {}
+    for cat in catalogues():
+        for name in cat.robot_names():
+            if name in index and index[name] != cat.name:
+                raise ValueError(
+                    f"robot name {name!r} is in both catalogue {index[name]!r} and {cat.name!r}"
+                )
+            index[name] = cat.name
+    return index
+
+
+def robot_catalogue(name: str) -> str | None:
+    """The catalogue that knows robot ``name``, or None."""
+    return _name_index().get(name)
+
+
+@functools.lru_cache(maxsize=2048)
+def _load(catalogue: str, name: str) -> Robot:
+    return get_catalogue(catalogue).load(name)
+
+
+def load_named(name: str) -> Robot:
+    """The robot ``name`` from whichever catalogue knows it (cached)."""
+    cat = robot_catalogue(name)
+    if cat is None:
+        raise UnknownRobotError(f"unknown robot {name!r}{did_you_mean(name, _name_index())}")
+    return _load(cat, name)
+
+
+# ------------------------------------------------------------------------------ SMPENV
+
+
+def smpenv_robot(name: str) -> Robot:
+    """The checked-in SMPENV robot ``name`` (``morphologies/smpenv/<name>.xml``), cached."""
+    if name not in SMPENV_ROBOTS:
+        raise UnknownRobotError(f"unknown SMPENV robot {name!r}{did_you_mean(name, SMPENV_ROBOTS)}")
+    return _load("smpenv", name)
+
+
+def _smpenv_check(root: Path) -> list[str]:
+    folder = root / "smpenv"
+    stale: list[str] = []
+    for name in SMPENV_ROBOTS:
+        path = folder / f"{name}.xml"
+        if not path.is_file():
+            stale.append(f"{path}: missing")
+        elif path.read_text() != build_mjcf(name):
+            stale.append(f"{path}: differs from the builder's output")
+    extra = sorted(p.name for p in folder.glob("*.xml") if p.stem not in SMPENV_ROBOTS)
+    return stale + [f"{folder / n}: not an SMPENV robot" for n in extra]
+
+
+SMPENV_CATALOGUE = Catalogue(
+    name="smpenv",
+    robot_names=lambda: SMPENV_ROBOTS,
+    load=lambda name: load_robot(morphologies_dir() / "smpenv" / f"{name}.xml", "smpenv"),
+    split_file=SMPENV_BENCHMARKS_FILE,
+    rebuild=lambda root: write_all(root / "smpenv"),
+    check=_smpenv_check,
+    description="the 32 SMPENV robots (walker, cheetah, humanoid_2d, hopper)",
+)
+
+
+# ------------------------------------------------------------------------------ split files
+
+
+def _validate(raw: Any, source: Path, known: dict[str, str]) -> dict[str, dict[str, list[str]]]:
     if not isinstance(raw, dict) or not raw:
         raise BenchmarkFileError(f"{source}: expected a mapping of benchmark name -> splits")
-    known = set(SMPENV_ROBOTS)
     out: dict[str, dict[str, list[str]]] = {}
     for bench, splits in raw.items():
         if not isinstance(splits, dict):
             raise BenchmarkFileError(f"{source}: benchmark {bench!r} must map train/test to lists")
-        extra = set(splits) - set(SPLITS)
+        extra = [s for s in splits if s not in SPLITS and not VARIANT_SPLIT.match(str(s))]
         if extra:
             raise BenchmarkFileError(
                 f"{source}: benchmark {bench!r} has unknown keys {sorted(extra)}; "
-                f"allowed: {', '.join(SPLITS)}"
+                f"allowed: {', '.join(SPLITS)}, variants-<kind>"
             )
         if "train" not in splits:
             raise BenchmarkFileError(f"{source}: benchmark {bench!r} has no train split")
         out[str(bench)] = {}
-        for split in SPLITS:
+        for split in [*SPLITS, *(s for s in splits if s not in SPLITS)]:
             robots = splits.get(split) or []
             if not isinstance(robots, list) or not all(isinstance(r, str) for r in robots):
                 raise BenchmarkFileError(f"{source}: {bench}:{split} must be a list of robot names")
             unknown = [r for r in robots if r not in known]
             if unknown:
-                hints = "; ".join(f"{r!r}{_close(r, SMPENV_ROBOTS)}" for r in unknown)
+                hints = "; ".join(f"{r!r}{did_you_mean(r, known)}" for r in unknown[:5])
                 raise BenchmarkFileError(f"{source}: {bench}:{split} names unknown robots: {hints}")
             dupes = sorted({r for r in robots if robots.count(r) > 1})
             if dupes:
                 raise BenchmarkFileError(f"{source}: {bench}:{split} lists {dupes} twice")
-            out[str(bench)][split] = list(robots)
+            out[str(bench)][str(split)] = list(robots)
         both = set(out[str(bench)]["train"]) & set(out[str(bench)]["test"])
         if both:
             raise BenchmarkFileError(
@@ -92,7 +252,7 @@ def _validate(raw: Any, source: Path) -> dict[str, dict[str, list[str]]]:
     return out
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=16)
 def _read_benchmarks(path: Path) -> dict[str, dict[str, list[str]]]:
     try:
         raw = yaml.safe_load(path.read_text())
@@ -100,16 +260,29 @@ def _read_benchmarks(path: Path) -> dict[str, dict[str, list[str]]]:
         raise BenchmarkFileError(f"{path}: cannot read benchmark file ({e.strerror})") from e
     except yaml.YAMLError as e:
         raise BenchmarkFileError(f"{path}: not valid YAML ({e})") from e
-    return _validate(raw, path)
+    return _validate(raw, path, _name_index())
 
 
-def load_benchmarks(path: str | Path | None = None) -> dict[str, dict[str, list[str]]]:
-    """Benchmark name -> {"train": [robot names], "test": [robot names]} (a fresh copy).
+def load_benchmarks(
+    path: str | Path | None = None, catalogue: str | None = None
+) -> dict[str, dict[str, list[str]]]:
+    """Benchmark name -> split name -> robot names (a fresh copy).
 
-    ``path`` defaults to ``<morphologies_dir()>/smpenv.yaml``.
+    ``path``: read that one split file. Otherwise the split files of every catalogue (or of
+    ``catalogue`` only) together.
     """
-    path = Path(path) if path is not None else morphologies_dir() / SMPENV_BENCHMARKS_FILE
-    return {b: {s: list(r) for s, r in sp.items()} for b, sp in _read_benchmarks(path).items()}
+    if path is not None:
+        paths = [Path(path)]
+    else:
+        cats = [get_catalogue(catalogue)] if catalogue else catalogues()
+        paths = [p for c in cats if (p := c.split_path()) is not None]
+    out: dict[str, dict[str, list[str]]] = {}
+    for p in paths:
+        for bench, splits in _read_benchmarks(p).items():
+            if bench in out:
+                raise BenchmarkFileError(f"{p}: benchmark {bench!r} is also defined elsewhere")
+            out[bench] = {s: list(r) for s, r in splits.items()}
+    return out
 
 
 def __getattr__(name: str) -> Any:
@@ -119,63 +292,76 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-@functools.lru_cache(maxsize=128)
-def smpenv_robot(name: str) -> Robot:
-    """The checked-in SMPENV robot ``name`` (``morphologies/smpenv/<name>.xml``), cached."""
-    if name not in SMPENV_ROBOTS:
-        raise UnknownRobotError(f"unknown SMPENV robot {name!r}{_close(name, SMPENV_ROBOTS)}")
-    return load_robot(morphologies_dir() / "smpenv" / f"{name}.xml")
+# ------------------------------------------------------------------------------ resolution
 
 
-def _benchmark_robots(spec: str) -> list[Robot]:
+def _benchmark_names(spec: str, benchmarks: dict[str, dict[str, list[str]]]) -> list[str]:
     bench_name, _, split = spec.partition(":")
-    benchmarks = load_benchmarks()
     if bench_name not in benchmarks:
         raise UnknownRobotError(
-            f"unknown benchmark {bench_name!r} in {spec!r}{_close(bench_name, list(benchmarks))} "
+            f"unknown benchmark {bench_name!r} in {spec!r}{did_you_mean(bench_name, benchmarks)} "
             f"(known: {', '.join(benchmarks)})"
         )
+    splits = benchmarks[bench_name]
     split = split or DEFAULT_SPLIT
     if split == "all":
-        names = benchmarks[bench_name]["train"] + benchmarks[bench_name]["test"]
-    elif split in SPLITS:
-        names = benchmarks[bench_name][split]
-    else:
+        return splits["train"] + splits["test"]
+    if split not in splits:
         raise UnknownRobotError(
-            f"unknown split {split!r} in {spec!r}; use one of {', '.join(SPLITS)}, all"
+            f"unknown split {split!r} in {spec!r}{did_you_mean(split, [*splits, 'all'])}; "
+            f"{bench_name} has splits {', '.join([*splits, 'all'])}"
         )
-    return [smpenv_robot(n) for n in names]
+    return splits[split]
+
+
+def _folder_robots(folder: Path) -> list[Robot]:
+    files = sorted(folder.glob("*.xml"))
+    if not files:
+        raise UnknownRobotError(f"folder {folder} holds no .xml robot files")
+    return [load_robot(f) for f in files]
 
 
 def resolve_robots(specs: Sequence[str]) -> list[Robot]:
-    """Robots from specs, in order and without repeats. A spec is one of:
+    """Robots from specs, in order. A spec is one of:
 
-    * a robot name, e.g. ``walker_3_main``;
-    * a path to an MJCF file, e.g. ``my_robots/walker_long.xml``;
-    * ``Benchmark:split``, e.g. ``CWHH++:train`` or ``Walker++:test`` (split defaults to
-      ``train``; ``all`` means train then test).
+    * a robot name of any catalogue, e.g. ``walker_3_main`` or ``unimal_0042``;
+    * a path to an MJCF file, e.g. ``my_robots/walker_long.xml``, or a folder of them;
+    * ``Benchmark:split``, e.g. ``CWHH++:train``, ``Walker++:test``, ``Unimal:variants-dynamics``
+      (split defaults to ``train``; ``all`` means train then test).
+
+    A robot named twice (directly or through two specs) is an error: a robot list names each robot
+    once, and ``env.copies`` runs more copies of every robot.
     """
     if isinstance(specs, str):
         specs = [specs]
     robots: list[Robot] = []
-    seen: set[str] = set()
+    origin: dict[str, str] = {}
+    benchmarks: dict[str, dict[str, list[str]]] | None = None
     for spec in specs:
-        found: list[Robot]
-        if spec in SMPENV_ROBOTS:
-            found = [smpenv_robot(spec)]
-        elif spec.endswith(".xml") or os.sep in spec or Path(spec).is_file():
+        path = Path(spec)
+        if robot_catalogue(spec) is not None:
+            found = [load_named(spec)]
+        elif path.is_dir():
+            found = _folder_robots(path)
+        elif spec.endswith(".xml") or os.sep in spec or path.is_file():
             found = [load_robot(spec)]
-        elif ":" in spec or spec.endswith("++") or spec in load_benchmarks():
-            found = _benchmark_robots(spec)
         else:
-            benchmarks = list(load_benchmarks())
-            raise UnknownRobotError(
-                f"unknown robot {spec!r}{_close(spec, list(SMPENV_ROBOTS) + benchmarks)} "
-                f"(a spec is a robot name, an .xml path, or one of "
-                f"{', '.join(b + ':train|test' for b in benchmarks)})"
-            )
+            benchmarks = benchmarks if benchmarks is not None else load_benchmarks()
+            if ":" in spec or spec in benchmarks:
+                found = [load_named(n) for n in _benchmark_names(spec, benchmarks)]
+            else:
+                raise UnknownRobotError(
+                    f"unknown robot {spec!r}{did_you_mean(spec, [*_name_index(), *benchmarks])} "
+                    f"(a spec is a robot name, an .xml path or folder, or one of "
+                    f"{', '.join(b + ':train|test' for b in benchmarks)})"
+                )
         for r in found:
-            if r.source not in seen:
-                seen.add(r.source)
-                robots.append(r)
+            if r.name in origin:
+                where = "" if origin[r.name] == spec else f" (from {origin[r.name]!r} and {spec!r})"
+                raise DuplicateRobotError(
+                    f"robot {r.name!r} is listed twice{where}; list each robot once and set "
+                    "env.copies to run more copies of every robot"
+                )
+            origin[r.name] = spec
+            robots.append(r)
     return robots

@@ -7,8 +7,13 @@ Two vocabularies exist:
 * the *global* limb-type id, one vocabulary shared by all families; GCNT's GCN and WL modules use
   it, so that a thigh is a thigh whichever robot it belongs to.
 
-Types are derived from body names, family by family, so that a robot file a user writes by hand
-(with the family's naming convention) gets the same types as the generated ones.
+SMPENV types are derived from body names, family by family, so that a robot file a user writes by
+hand (with the family's naming convention) gets the same types as the generated ones. UNIMAL limbs
+have no anatomical names (``limb/3``), so their type is their place in the body tree
+(:func:`unimal_limb_types`): *proximal* (attached to the torso), *inner* (deeper, with children)
+or *distal* (deeper, a leaf). Hip-like, knee-like and foot-like roles, the closest UNIMAL analogue
+of thigh/shin/foot, read from the tree alone, so every mutation that keeps the topology keeps the
+types.
 """
 
 from __future__ import annotations
@@ -23,12 +28,20 @@ GLOBAL_LIMB_TYPES: tuple[str, ...] = (
     "foot",
     "upper_arm",
     "lower_arm",
+    # id 6: a placeholder from before UNIMAL robots were read structurally; no robot gets it now,
+    # kept so that no id after it shifts.
     "unimal_limb",
+    "unimal_proximal",
+    "unimal_inner",
+    "unimal_distal",
 )
 GLOBAL_TYPE_ID: dict[str, int] = {name: i for i, name in enumerate(GLOBAL_LIMB_TYPES)}
 
 #: Number of slots of the family-level one-hot in the SMPENV observation.
 FAMILY_TYPE_SLOTS = 4
+
+#: Most bodies (torso included) a robot of the family may have; families not listed: no limit.
+MAX_LIMBS: dict[str, int] = {"unimal": 12}
 
 #: Families and the most hinge joints one of their limbs may carry.
 MAX_JOINTS_PER_LIMB: dict[str, int] = {
@@ -55,7 +68,6 @@ _RULES: dict[str, tuple[tuple[str, str, int], ...]] = {
         (r"upper_arm$", "upper_arm", 1),
         (r"lower_arm$", "lower_arm", 2),
     ),
-    "unimal": ((r".*", "unimal_limb", 1),),
 }
 
 
@@ -76,3 +88,23 @@ def limb_type(family: str, body_name: str, is_root: bool) -> tuple[int, int]:
         f"body {body_name!r} matches no limb type of family {family!r} "
         f"(expected names ending in: {', '.join(p for p, _, _ in _RULES[family])})"
     )
+
+
+def unimal_limb_types(parents: list[int] | tuple[int, ...]) -> list[tuple[int, int]]:
+    """``(global_type_id, family_slot)`` of every body of a UNIMAL tree (pre-order parents).
+
+    Torso 0; proximal (child of the torso) slot 1; inner (deeper, has children) slot 2; distal
+    (deeper, a leaf) slot 3.
+    """
+    has_kids = {p for p in parents if p >= 0}
+    out: list[tuple[int, int]] = []
+    for i, p in enumerate(parents):
+        if p < 0:
+            out.append((GLOBAL_TYPE_ID["torso"], 0))
+        elif p == 0:
+            out.append((GLOBAL_TYPE_ID["unimal_proximal"], 1))
+        elif i in has_kids:
+            out.append((GLOBAL_TYPE_ID["unimal_inner"], 2))
+        else:
+            out.append((GLOBAL_TYPE_ID["unimal_distal"], 3))
+    return out

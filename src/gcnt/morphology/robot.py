@@ -2,6 +2,12 @@
 
 Read from MJCF through MuJoCo's own compiler, so that what the policy sees is what the simulator
 steps. Every malformed file raises :class:`RobotFileError` naming the file and the culprit.
+
+One loader serves every family. What differs per family is said in one place each: the most
+hinges per limb and bodies per robot (``limb_types``), the root joint (UNIMAL: one free joint),
+the limb types (SMPENV: from body names; UNIMAL: from the tree) and the action slot of each joint
+(SMPENV: joint order; UNIMAL: slot 0 = the hinge about the limb's x axis, slot 1 = about its y
+axis, decided from the joint axis as written in the file, seen in the frame of the limb's capsule).
 """
 
 from __future__ import annotations
@@ -15,10 +21,23 @@ import mujoco
 import numpy as np
 
 from gcnt.morphology.graph import WL_BUCKETS, WL_ROUNDS, RobotGraph
-from gcnt.morphology.limb_types import FAMILIES, MAX_JOINTS_PER_LIMB, UnknownLimbError, limb_type
+from gcnt.morphology.limb_types import (
+    FAMILIES,
+    MAX_JOINTS_PER_LIMB,
+    MAX_LIMBS,
+    UnknownLimbError,
+    limb_type,
+    unimal_limb_types,
+)
 
 #: MJCF ``<custom><text name=...>`` entry that names a robot's family explicitly.
 FAMILY_TEXT = "gcnt_family"
+#: The torso body of every UNIMAL file; a file with it is a UNIMAL robot whatever its model name.
+UNIMAL_TORSO = "torso/0"
+#: Families whose limbs carry up to two hinges put in action slots by axis (x -> 0, y -> 1).
+_SLOT_BY_AXIS = frozenset({"unimal"})
+#: Families whose root must be one free joint.
+_FREE_ROOT = frozenset({"unimal"})
 
 
 class RobotFileError(ValueError):
@@ -45,7 +64,8 @@ class Robot:
     #: action slot of each joint of each limb (same order as ``joint_names``); empty: slots
     #: 0, 1, ... in joint order. UNIMAL limbs put their x hinge in slot 0 and y hinge in slot 1.
     joint_slots: tuple[tuple[int, ...], ...] = ()
-    #: the robot catalogue (benchmark) the robot belongs to, e.g. "smpenv" or "unimal"
+    #: the robot catalogue the robot came from, e.g. "smpenv" or "unimal" (a file loaded by path:
+    #: the catalogue of its family)
     catalogue: str = "smpenv"
 
     def action_slots(self, limb: int) -> tuple[int, ...]:
@@ -88,6 +108,8 @@ def _family_of(model: mujoco.MjModel, root: ET.Element, source: str) -> str:
                 )
             return fam
     name = root.get("model", "") or Path(source).stem
+    if any(el.get("name") == UNIMAL_TORSO for el in root.iter("body")):
+        return "unimal"
     for fam in FAMILIES:
         if name.startswith(fam):
             return fam
@@ -97,22 +119,83 @@ def _family_of(model: mujoco.MjModel, root: ET.Element, source: str) -> str:
     )
 
 
-def load_robot(path: str | Path) -> Robot:
-    """Read a robot from an MJCF file."""
+def load_robot(path: str | Path, catalogue: str | None = None) -> Robot:
+    """Read a robot from an MJCF file (``catalogue``: see :func:`robot_from_xml`)."""
     path = Path(path)
     try:
         text = path.read_text()
     except OSError as e:
         raise RobotFileError(f"{path}: cannot read robot file ({e.strerror})") from e
-    return robot_from_xml(text, source=str(path), name=path.stem)
+    return robot_from_xml(text, source=str(path), name=path.stem, catalogue=catalogue)
 
 
-def robot_from_xml(text: str, source: str = "<string>", name: str | None = None) -> Robot:
-    """Read a robot from MJCF text. ``name`` defaults to the model attribute."""
+def _check_motors(root: ET.Element, source: str) -> None:
+    joints = {el.get("name") for el in root.iter("joint")}
+    actuator = root.find("actuator")
+    for el in actuator if actuator is not None else ():
+        target = el.get("joint")
+        if target is None:
+            raise RobotFileError(
+                f"{source}: {el.tag} {el.get('name', '(unnamed)')!r} has no joint; every motor "
+                "must drive one limb hinge"
+            )
+        if target not in joints:
+            raise RobotFileError(
+                f"{source}: {el.tag} {el.get('name', '(unnamed)')!r} drives joint {target!r}, "
+                "which the file does not define"
+            )
+
+
+def _check_root(model: mujoco.MjModel, body: int, family: str, source: str) -> None:
+    if family not in _FREE_ROOT:
+        return
+    start, num = int(model.body_jntadr[body]), int(model.body_jntnum[body])
+    types = [int(model.jnt_type[j]) for j in range(start, start + num)]
+    if types != [mujoco.mjtJoint.mjJNT_FREE]:
+        raise RobotFileError(
+            f"{source}: root body {model.body(body).name!r} has no free root joint (found "
+            f"{num} joint(s) of other types); a {family} robot's torso moves freely"
+        )
+
+
+def _slots_by_axis(
+    model: mujoco.MjModel, body: int, hinges: list[int], source: str
+) -> tuple[int, ...]:
+    """Slot 0 for the hinge about the limb's x axis, 1 for its y axis (the capsule's frame)."""
+    bname = model.body(body).name
+    if int(model.body_geomnum[body]) == 0:
+        raise RobotFileError(f"{source}: limb {bname!r} has no geom to define its frame")
+    geom = int(model.body_geomadr[body])
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.geom_quat[geom])
+    slots = []
+    for j in hinges:
+        local = rot.reshape(3, 3).T @ model.jnt_axis[j]  # the axis in the limb's frame
+        k = int(np.argmax(np.abs(local)))
+        if k == 2:
+            raise RobotFileError(
+                f"{source}: joint {model.joint(j).name!r} of limb {bname!r} turns about the "
+                "limb's own long axis; UNIMAL hinges turn about its x or y axis"
+            )
+        slots.append(k)
+    if len(set(slots)) != len(slots):
+        raise RobotFileError(
+            f"{source}: both hinges of limb {bname!r} turn about its "
+            f"{'xy'[slots[0]]} axis; a UNIMAL limb has at most one hinge per axis"
+        )
+    return tuple(slots)
+
+
+def robot_from_xml(
+    text: str, source: str = "<string>", name: str | None = None, catalogue: str | None = None
+) -> Robot:
+    """Read a robot from MJCF text. ``name`` defaults to the model attribute; ``catalogue`` to
+    the catalogue of the robot's family ("unimal" for UNIMAL robots, else "smpenv")."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
         raise RobotFileError(f"{source}: not valid XML ({e})") from e
+    _check_motors(root, source)
     try:
         model = mujoco.MjModel.from_xml_string(text)
     except ValueError as e:
@@ -126,6 +209,7 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
         raise RobotFileError(
             f"{source}: expected exactly one root body under worldbody, found {len(roots)}: {names}"
         )
+    _check_root(model, roots[0], family, source)
     # Depth-first pre-order from the root; children in file order.
     kids: dict[int, list[int]] = {}
     for b in range(1, model.nbody):
@@ -140,6 +224,13 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
     parents = np.array(
         [-1] + [index[int(model.body_parentid[b])] for b in order[1:]], dtype=np.int64
     )
+    max_limbs = MAX_LIMBS.get(family)
+    if max_limbs is not None and len(order) > max_limbs:
+        raise RobotFileError(
+            f"{source}: {len(order)} bodies (torso included); a {family} robot may have at most "
+            f"{max_limbs}"
+        )
+    by_tree = unimal_limb_types(parents.tolist()) if family == "unimal" else None
 
     motor_of: dict[int, int] = {}
     for a in range(model.nu):
@@ -148,6 +239,7 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
 
     max_j = MAX_JOINTS_PER_LIMB[family]
     body_names, jnames, jids, aids, ranges, gtypes, slots = [], [], [], [], [], [], []
+    action_slots: list[tuple[int, ...]] = []
     for i, b in enumerate(order):
         bname = model.body(b).name
         body_names.append(bname)
@@ -158,6 +250,12 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
         if i == 0:
             hinges = []  # the torso's root joints are unactuated
         else:
+            other = [j for j in range(start, start + num) if j not in hinges]
+            if other:
+                raise RobotFileError(
+                    f"{source}: limb {bname!r} has joint {model.joint(other[0]).name!r} that is "
+                    "not a hinge; limbs move only about hinges"
+                )
             if not hinges:
                 raise RobotFileError(f"{source}: limb {bname!r} has no hinge joint")
             if len(hinges) > max_j:
@@ -176,12 +274,27 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
         ranges.append(
             np.array([model.jnt_range[j] for j in hinges], dtype=np.float64).reshape(-1, 2)
         )
-        try:
-            g, s = limb_type(family, bname, is_root=i == 0)
-        except UnknownLimbError as e:
-            raise RobotFileError(f"{source}: {e}") from e
+        if family in _SLOT_BY_AXIS:
+            action_slots.append(_slots_by_axis(model, b, hinges, source) if hinges else ())
+        if by_tree is not None:
+            g, s = by_tree[i]
+        else:
+            try:
+                g, s = limb_type(family, bname, is_root=i == 0)
+            except UnknownLimbError as e:
+                raise RobotFileError(f"{source}: {e}") from e
         gtypes.append(g)
         slots.append(s)
+    used = {a for limb in aids for a in limb}
+    for a in range(model.nu):
+        if a not in used:
+            target = "no joint"
+            if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+                target = f"joint {model.joint(int(model.actuator_trnid[a, 0])).name!r}"
+            raise RobotFileError(
+                f"{source}: motor {model.actuator(a).name!r} drives {target}, not a limb hinge; "
+                "every motor must drive one limb hinge"
+            )
 
     return Robot(
         name=name,
@@ -197,4 +310,6 @@ def robot_from_xml(text: str, source: str = "<string>", name: str | None = None)
         joint_ranges=tuple(ranges),
         global_types=np.array(gtypes, dtype=np.int64),
         family_slots=np.array(slots, dtype=np.int64),
+        joint_slots=tuple(action_slots),
+        catalogue=catalogue or ("unimal" if family == "unimal" else "smpenv"),
     )

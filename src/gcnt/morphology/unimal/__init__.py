@@ -1,0 +1,1 @@
+"""UNIMAL robots: the DERL symmetric design space, a generator, mutations, the checked-in set."""
