@@ -7,7 +7,17 @@ import math
 
 import pytest
 import torch
-from nn_helpers import F_OBS, batch, robots, small, table_of
+from nn_helpers import (
+    A_UNIMAL,
+    F_OBS,
+    F_UNIMAL,
+    H_SMALL,
+    batch,
+    robots,
+    small,
+    table_of,
+    unimal_table,
+)
 from tensordict.nn import InteractionType, set_interaction_type
 from torchrl.modules import ProbabilisticActor
 from torchrl.modules.distributions.utils import sample_and_log_prob
@@ -89,23 +99,21 @@ def test_ppo_actor_is_a_probabilistic_actor_with_root_log_prob(std):
     assert any("log_std" in n for n, _ in actor.named_parameters()) == (std == "learned")
 
 
-def test_clip_ppo_loss_forward_backward():
+@pytest.mark.parametrize("name", ["gcnt", "modumorph", "metamorph"])
+def test_clip_ppo_loss_forward_backward(name):
+    """ClipPPOLoss on SMPENV-like robots (GCNT) and on UNIMAL-like robots with a static context
+    and a height map (ModuMorph, MetaMorph: dropout is off in eval mode, so the KL is 0)."""
     torch.manual_seed(0)
-    table = table_of(robots())
-    actor = make_network(
-        "gcnt",
-        "ppo_actor",
-        table=table,
-        obs_dim=F_OBS,
-        num_actions=1,
-        ppo_std="learned",
-        **small("gcnt"),
-    )
-    critic = make_network(
-        "gcnt", "ppo_critic", table=table, obs_dim=F_OBS, num_actions=1, **small("gcnt")
-    )
+    if name == "gcnt":
+        table, f, a, h = table_of(robots()), F_OBS, 1, 0
+    else:
+        table, f, a, h = unimal_table(), F_UNIMAL, A_UNIMAL, H_SMALL
+    kw = dict(table=table, obs_dim=f, num_actions=a, hfield_dim=h, **small(name))
+    actor = make_network(name, "ppo_actor", ppo_std="learned", **kw).eval()
+    critic = make_network(name, "ppo_critic", **kw).eval()
     n = 16
-    td = batch(table, torch.arange(n) % 27, seed=1).exclude(("limbs", "action"))
+    ids = torch.arange(n) % table.batch_size[0]
+    td = batch(table, ids, seed=1, f=f, hfield=h).exclude(("limbs", "action"))
     with torch.no_grad(), set_interaction_type(InteractionType.RANDOM):
         td = critic(actor(td))  # as a collector + GAE would: log-prob and old value stored
     td.set("advantage", torch.randn(n, 1))
