@@ -10,44 +10,48 @@ RECIPES = sorted(Path(__file__).parents[1].joinpath("recipes").rglob("*.yaml"))
 @pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(p.parents[1])))
 def test_every_recipe_file_validates(path):
     recipe = load_recipe(path)
-    assert recipe.optim.policy_delay >= 1
+    assert recipe.algo_config is recipe.sections[recipe.algo]
 
 
 def test_paper_td3_settings_in_the_smpenv_recipes():
     r = load_recipe("recipes/smpenv/walker.yaml")
-    assert (r.optim.lr, r.optim.gamma, r.optim.tau, r.optim.policy_delay) == (1e-4, 0.99, 0.046, 2)
-    assert (r.optim.policy_noise, r.optim.noise_clip, r.optim.max_grad_norm) == (0.2, 0.5, 0.1)
-    assert (r.replay_buffer.batch_size, r.collector.init_random_frames) == (100, 10_000)
-    assert r.collector.exploration_noise == 0.126 and r.collector.total_frames == 10_000_000
+    t = r.td3
+    assert (t.lr, t.gamma, t.tau, t.policy_delay) == (1e-4, 0.99, 0.046, 2)
+    assert (t.policy_noise, t.noise_clip, t.max_grad_norm) == (0.2, 0.5, 0.1)
+    assert (t.batch_size, t.init_random_frames) == (100, 10_000)
+    assert t.exploration_noise == 0.126 and r.collector.total_frames == 10_000_000
     assert load_recipe("recipes/smpenv/cwhh.yaml").collector.total_frames == 20_000_000
 
 
 def test_dotted_overrides_are_typed():
     r = load_recipe(
         "recipes/smpenv/walker.yaml",
-        ["network.name=swat", "seed=2", "optim.lr=3e-4", "network.kwargs.d_model=64"],
+        ["network.name=swat", "seed=2", "td3.lr=3e-4", "network.kwargs.d_model=64"],
     )
-    assert (r.network.name, r.seed, r.optim.lr) == ("swat", 2, 3e-4)
+    assert (r.network.name, r.seed, r.td3.lr) == ("swat", 2, 3e-4)
     assert r.network.kwargs == {"d_model": 64}
-    assert isinstance(r.optim.lr, float)
+    assert isinstance(r.td3.lr, float)
 
 
 def test_base_is_merged_section_by_section():
     r = load_recipe("recipes/smpenv/ablations/humanoid_no_gcn.yaml")
     assert r.network.name == "gcnt_no_gcn"
-    assert r.benchmark == "Humanoid++" and r.optim.tau == 0.046
+    assert r.task == "Humanoid++" and r.td3.tau == 0.046
 
 
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("optim.lrr=1", "unknown recipe key 'optim.lrr'; did you mean 'lr'?"),
+        ("td3.lrr=1", "unknown recipe key 'td3.lrr'; did you mean 'lr'?"),
         ("seeds=1", "did you mean 'seed'?"),
         ("collecter.total_frames=5", "did you mean 'collector'?"),
-        ("collector.schedule=fast", "'fast' is not one of 'paper', 'mixed'"),
+        ("td3.schedule=fast", "'fast' is not one of 'paper', 'mixed'"),
         ("seed=abc", "seed: expected int"),
-        ("optim=3", "expected a mapping"),
+        ("td3=3", "expected a mapping"),
         ("seed", "must look like section.key=value"),
+        ("algo=tdd3", "unknown algorithm 'tdd3'; did you mean 'td3'?"),
+        ("td3.gamma=2", "gamma must be in [0, 1]"),
+        ("collector.total_frames=-100", "total_frames must be >= 1"),
     ],
 )
 def test_bad_keys_and_values_name_the_culprit(override, message):
@@ -79,3 +83,10 @@ def test_malformed_yaml_and_base_cycle(tmp_path):
 def test_defaults_round_trip():
     r = recipe_from_dict({})
     assert recipe_from_dict(r.to_dict()) == r
+
+
+def test_only_the_active_algorithm_section_is_validated():
+    data = {"algo": "td3", "td3": {"lr": 1e-3}, "ppo": {"not_a_key": 1}}
+    r = recipe_from_dict(data)
+    assert r.td3.lr == 1e-3 and r.sections["ppo"] == {"not_a_key": 1}
+    assert recipe_from_dict(r.to_dict()).to_dict() == r.to_dict()

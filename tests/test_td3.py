@@ -14,7 +14,7 @@ from gcnt.recipes import load_recipe
 from gcnt.rl import replay as rb
 from gcnt.rl.factories import train_robots
 from gcnt.rl.run_dir import RunDir
-from gcnt.rl.td3 import train
+from gcnt.rl.loop import train
 from gcnt.rl.td3_loss import PerRobotTD0, masked_mean
 
 ROOT = Path(__file__).parents[1]
@@ -23,16 +23,16 @@ RECIPES = sorted(p for p in (ROOT / "recipes").rglob("*.yaml") if not p.name.sta
 TINY = [
     "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}",
     "env.max_episode_steps=15",
-    "collector.init_random_frames=40",
-    "collector.steps_per_batch=5",
-    "replay_buffer.batch_size=8",
-    "replay_buffer.size_per_robot=2000",
+    "td3.init_random_frames=40",
+    "td3.steps_per_batch=5",
+    "td3.batch_size=8",
+    "td3.buffer_size_per_robot=2000",
     "logger.backend=none",
     "logger.progress=false",
     "logger.log_interval=40",
     "eval.episodes=1",
     "eval.robots=[hopper_3]",
-    "optim.updates_per_step=0.25",
+    "td3.updates_per_step=0.25",
     "eval.interval=0",
     "checkpoint_interval=60",
 ]
@@ -42,7 +42,7 @@ def tiny(path, run_dir, *extra, frames=None):
     recipe = load_recipe(path, [*TINY, f"run_dir={run_dir}", *extra])
     n = len(train_robots(recipe))
     # a few update phases whatever the robot count: random steps, then ~4 lockstep chunks
-    recipe.collector.init_random_frames = 5 * n
+    recipe.td3.init_random_frames = 5 * n
     recipe.collector.total_frames = frames or 20 * n
     return recipe
 
@@ -53,7 +53,7 @@ def test_td_target_is_per_robot_mean_and_truncation_bootstraps():
     q_next = torch.tensor([[1.0, 2.0, 100.0], [4.0, 8.0, 0.0]]).unsqueeze(-1)  # limb 2: padding
     td = TensorDict(
         {
-            "limbs": {"action_mask": torch.tensor([[[1], [1], [0]], [[1], [1], [0]]]).bool()},
+            "limbs": {"mask": torch.tensor([[1, 1, 0], [1, 1, 0]]).bool()},
             "next": {
                 "limbs": {"state_action_value": q_next},
                 "reward": torch.tensor([[1.0], [1.0]]),
@@ -65,13 +65,14 @@ def test_td_target_is_per_robot_mean_and_truncation_bootstraps():
     )
     target = est.value_estimate(td)
     assert target.shape == (2, 1, 1)
-    # robot 0 truncated: bootstrapped from the mean over real motor limbs (1+2)/2; 1 terminated
+    # robot 0 truncated: bootstrapped from the mean over real limbs (1+2)/2; 1 terminated
     assert torch.allclose(target.flatten(), torch.tensor([1.0 + 0.5 * 1.5, 1.0]))
 
 
-def test_masked_mean_ignores_padding():
-    values = torch.tensor([[1.0, 3.0, 1000.0]])
-    assert masked_mean(values, torch.tensor([[True, True, False]])) == 2.0
+def test_masked_mean_is_the_batch_mean_of_per_robot_means_over_real_limbs():
+    values = torch.tensor([[1.0, 3.0, 1000.0], [4.0, 4.0, 4.0]], dtype=torch.float64)
+    mask = torch.tensor([[True, True, False], [True, True, True]])
+    assert masked_mean(values, mask).item() == (2.0 + 4.0) / 2
 
 
 def test_replay_routes_by_morph_id_and_mixes_all_robots():
@@ -110,6 +111,7 @@ def test_every_recipe_trains_a_few_steps(path, tmp_path):
     assert rows[-1]["updates"] > 0 and any("loss_critic" in r for r in rows)
     assert run.checkpoint_path.exists()
     assert list((run.path / "eval").glob("step*.json"))
+    assert run.load_recipe().resolved["frames_per_batch"] > 0  # derived sizes written back
 
 
 @pytest.mark.parametrize("method", ["amorpheus", "swat", "smp", "gcnt_no_dist", "mlp"])
@@ -126,7 +128,7 @@ def test_methods_selectable_by_override(method, tmp_path):
 def test_paper_and_mixed_schedules_count_every_stored_step(tmp_path):
     for schedule in ("paper", "mixed"):
         recipe = tiny(ROOT / "recipes/smpenv/hopper.yaml", tmp_path / schedule)
-        recipe.collector.schedule = schedule
+        recipe.td3.schedule = schedule
         run = RunDir(recipe.run_dir)
         run.create(recipe)
         train(recipe, run)
@@ -151,6 +153,9 @@ def test_resume_continues_the_step_count_and_metrics(tmp_path):
     assert rows[: len(first)] == first
     assert [r["env_steps"] for r in rows[len(first) :]] == [120, 150]
     assert run.load_checkpoint()["learner"]["updates"] > state["learner"]["updates"]
+    # resuming a finished run does not train past its total
+    assert gcnt(["train", "--resume", str(run_dir), "collector.total_frames=150"]) == 0
+    assert run.load_checkpoint()["env_steps"] == 150 and run.read_metrics() == rows
     # the resumed run refuses to be created again over itself
     assert gcnt(["train", str(ROOT / "recipes/smpenv/hopper.yaml"), f"run_dir={run_dir}"]) == 2
 
@@ -187,18 +192,18 @@ def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
 
 
 def test_misspelt_recipe_key_fails_with_a_clear_message(capsys):
-    assert gcnt(["train", str(ROOT / "recipes/smpenv/walker.yaml"), "optim.lrr=1"]) == 2
-    assert "unknown recipe key 'optim.lrr'; did you mean 'lr'?" in capsys.readouterr().err
+    assert gcnt(["train", str(ROOT / "recipes/smpenv/walker.yaml"), "td3.lrr=1"]) == 2
+    assert "unknown recipe key 'td3.lrr'; did you mean 'lr'?" in capsys.readouterr().err
 
 
 def test_default_run_dirs_never_overwrite_a_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     recipe = load_recipe(ROOT / "recipes/quickstart.yaml")
     first = RunDir.for_recipe(recipe)
-    assert first.path == Path("runs/quickstart/gcnt/seed0")
+    assert first.path == Path("runs/quickstart/td3-gcnt/seed0")
     first.create(recipe)
     recipe.run_dir = None
-    assert RunDir.for_recipe(recipe).path == Path("runs/quickstart/gcnt/seed0-1")
+    assert RunDir.for_recipe(recipe).path == Path("runs/quickstart/td3-gcnt/seed0-1")
 
 
 def test_eval_video_is_written(tmp_path):

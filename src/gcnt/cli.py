@@ -1,5 +1,13 @@
-"""The ``gcnt`` command. Each sub-command lives in ``gcnt.commands.<name>`` and provides
-``add_arguments(parser)`` and ``run(args) -> int``; register it in ``COMMANDS``."""
+"""The ``gcnt`` command: train and evaluate morphology-agnostic policies, and inspect robots,
+networks, runs and speed.
+
+Each sub-command lives in ``gcnt.commands.<name>`` and provides ``add_arguments(parser)`` and
+``run(args) -> int``; register it in ``COMMANDS``. Only the chosen sub-command's module is
+imported, so ``gcnt --help`` and a misspelt command answer at once (torch is not loaded).
+
+A mistake in what the user gave (a recipe, robot file, override, checkpoint, directory) is one
+line naming the culprit and exit code 2; ``-v`` adds the traceback.
+"""
 
 from __future__ import annotations
 
@@ -8,50 +16,108 @@ import importlib
 import logging
 import sys
 
+from gcnt.suggest import did_you_mean
+
 #: sub-command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "robots": (
-        "gcnt.commands.robots",
-        "list robots and benchmarks; rebuild the SMPENV robot files",
-    ),
+    "robots": ("gcnt.commands.robots", "list, check and generate robots and benchmarks"),
     "train": ("gcnt.commands.train", "train a policy from a recipe, or resume a run"),
-    "eval": ("gcnt.commands.eval", "evaluate a run's deterministic policy per robot"),
+    "eval": ("gcnt.commands.eval", "evaluate a run's policy per robot (zero-shot included)"),
     "params": ("gcnt.commands.params", "parameter counts of every method (paper tables 7-8)"),
-    "bench-nn": ("gcnt.commands.bench_nn", "forward+backward time of GCNT vs AMORPHEUS (TD3)"),
+    "bench-nn": ("gcnt.commands.bench_nn", "forward+backward time of GCNT vs its Transformer base"),
     "bench-learn": (
         "gcnt.commands.bench_learn",
         "learning check: a recipe beats the random policy",
     ),
     "bench-train": (
         "gcnt.commands.bench_train",
-        "training env steps/s against the bare TD3 update",
+        "training env steps/s against the bare update",
     ),
-    "bench-env": ("gcnt.commands.bench_env", "measure SMPEnv steps/s against a raw mj_step loop"),
+    "bench-env": ("gcnt.commands.bench_env", "env steps/s against a raw mj_step loop"),
+    "sweep": ("gcnt.commands.sweep", "run a grid of recipes x methods x seeds, locally or on Slurm"),
+    "curves": ("gcnt.commands.curves", "learning curves over seeds (paper figures 6, 7, 9)"),
+    "zeroshot": ("gcnt.commands.zeroshot", "zero-shot table over seeds (paper table 1)"),
+    "variants": ("gcnt.commands.variants", "returns on variant sets, bootstrap CIs (figure 8)"),
+    "embed": ("gcnt.commands.embed", "t-SNE of per-limb structural vectors (figure 10)"),
+    "strobe": ("gcnt.commands.strobe", "a strobe picture of one rollout per run (figure 11)"),
+    "tables": ("gcnt.commands.tables", "parameter tables as Markdown (tables 7-8)"),
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gcnt", description=__doc__.splitlines()[0])
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """Exceptions that mean bad input (reported in one line, exit 2), imported lazily."""
+    from gcnt.recipes import RecipeError
+
+    errors: list[type[BaseException]] = [RecipeError, FileExistsError, FileNotFoundError]
+    for module, names in (
+        ("gcnt.morphology.robot", ("RobotFileError",)),
+        ("gcnt.morphology.benchmarks", ("UnknownRobotError", "BenchmarkFileError")),
+        ("gcnt.envs.robot_table", ("RobotTooLargeError",)),
+        ("gcnt.rl.run_dir", ("CheckpointError",)),
+    ):
+        mod = sys.modules.get(module)
+        errors += [getattr(mod, n) for n in names if mod is not None and hasattr(mod, n)]
+    return tuple(errors)
+
+
+def _command_of(argv: list[str]) -> str | None:
+    """The sub-command named in ``argv`` (the first word that is not an option)."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word
+    return None
+
+
+def build_parser(only: str | None) -> argparse.ArgumentParser:
+    """The parser; the arguments of sub-command ``only`` are added (its module is imported)."""
+    parser = argparse.ArgumentParser(
+        prog="gcnt",
+        description="Train and evaluate morphology-agnostic policies (GCNT and its baselines) "
+        "on SMPENV and UNIMAL robots.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging, tracebacks")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
-        importlib.import_module(module).add_arguments(p)
+        if name == only:
+            importlib.import_module(module).add_arguments(p)
         p.set_defaults(_module=module)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    # Configure gcnt's own logger: libraries imported above (absl via dm_control) may already
-    # have put a handler on the root logger, which would make logging.basicConfig a no-op.
+def _configure_logging(verbose: bool) -> None:
+    # Configure gcnt's own logger: libraries (absl via dm_control) may already have put a
+    # handler on the root logger, which would make logging.basicConfig a no-op.
     handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     gcnt_log = logging.getLogger("gcnt")
     gcnt_log.handlers[:] = [handler]
-    gcnt_log.setLevel(logging.DEBUG if args.verbose else logging.INFO)
+    gcnt_log.setLevel(logging.DEBUG if verbose else logging.INFO)
     gcnt_log.propagate = False
-    return int(importlib.import_module(args._module).run(args) or 0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = _command_of(argv)
+    if command is not None and command not in COMMANDS:
+        print(
+            f"gcnt: unknown command {command!r}{did_you_mean(command, COMMANDS)} "
+            f"(commands: {', '.join(COMMANDS)}; see gcnt --help)",
+            file=sys.stderr,
+        )
+        return 2
+    args = build_parser(only=command).parse_args(argv)
+    _configure_logging(args.verbose)
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except KeyboardInterrupt:
+        print("gcnt: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if args.verbose or not isinstance(e, _user_errors()):
+            raise
+        print(f"gcnt {args.command}: error: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ a comment; a YAML key that is not declared is an error that names it and suggest
 from __future__ import annotations
 
 import dataclasses
-import difflib
+import importlib
 import types
 import typing
 from dataclasses import dataclass, field
@@ -19,6 +19,8 @@ from typing import Any, Literal
 
 import yaml
 
+from gcnt.suggest import did_you_mean
+
 
 class RecipeError(ValueError):
     """A recipe that cannot be used; the message names the file and the key."""
@@ -26,7 +28,11 @@ class RecipeError(ValueError):
 
 @dataclass
 class EnvConfig:
-    #: robots to train on: names (walker_7_main), robot files (path/to.xml) or Benchmark:split
+    #: the benchmark whose env and robot catalogue to use: smpenv | unimal (``gcnt robots``)
+    benchmark: str = "smpenv"
+    #: the benchmark's world (UNIMAL: ft | incline | mt | obstacles); unset: its default
+    world: str | None = None
+    #: robots to train on: names (walker_7_main), robot files or folders, or Benchmark:split
     robots: list[str] = field(default_factory=lambda: ["Walker++:train"])
     #: zero-shot robots (evaluated, never trained on); same syntax as ``robots``
     test_robots: list[str] = field(default_factory=list)
@@ -44,52 +50,15 @@ class EnvConfig:
 class CollectorConfig:
     #: environment steps to train for, counted over all robots (every stored transition counts)
     total_frames: int = 10_000_000
-    #: first steps with uniform random actions in [-1, 1] (counted over all robots)
-    init_random_frames: int = 10_000
-    #: "paper": lockstep until every robot has finished an episode, then per-robot updates from
-    #: its own buffer, as many as its transitions. "mixed": every ``steps_per_batch`` lockstep
-    #: steps, updates on padded batches that mix all robots (batch_size samples of each robot)
-    schedule: Literal["paper", "mixed"] = "paper"
-    #: lockstep steps between update phases in the "mixed" schedule
-    steps_per_batch: int = 50
-    #: std of the Gaussian exploration noise added to the actor's actions
-    exploration_noise: float = 0.126
-
-
-@dataclass
-class ReplayBufferConfig:
-    #: transitions kept per robot (the paper: 500k) ...
-    size_per_robot: int = 500_000
-    #: ... and over all robots (the paper: 4M): each robot gets min(size_per_robot, total/robots)
-    total_size: int = 4_000_000
-    #: mini-batch size (per robot, also in the mixed schedule)
-    batch_size: int = 100
-
-
-@dataclass
-class OptimConfig:
-    #: Adam learning rate of actor and critic
-    lr: float = 1e-4
-    gamma: float = 0.99
-    #: soft target update rate (target = (1 - tau) target + tau online)
-    tau: float = 0.046
-    #: critic updates per actor (and target) update
-    policy_delay: int = 2
-    #: target-policy smoothing noise std and clip
-    policy_noise: float = 0.2
-    noise_clip: float = 0.5
-    #: gradient-norm clip of actor and critic (<= 0: off)
-    max_grad_norm: float = 0.1
-    #: critic updates per stored environment step (the paper: 1)
-    updates_per_step: float = 1.0
 
 
 @dataclass
 class NetworkConfig:
-    #: gcnt | amorpheus | swat | smp | mlp (ablations: gcnt_no_gcn, gcnt_no_wl, gcnt_no_dist)
+    #: the method: gcnt | amorpheus | swat | smp | mlp | ... (``gcnt params`` lists them;
+    #: ablations gcnt_no_gcn, gcnt_no_wl, gcnt_no_dist)
     name: str = "gcnt"
-    #: size preset: smpenv (paper appendix table 1) or unimal (table 3)
-    preset: str = "smpenv"
+    #: size preset: smpenv (paper appendix table 1) or unimal (table 3); unset: the benchmark's
+    preset: str | None = None
     #: keyword overrides of the preset (e.g. d_model: 64); validated by the network builder
     kwargs: dict[str, Any] = field(default_factory=dict)
 
@@ -100,7 +69,7 @@ class LoggerConfig:
     backend: Literal["wandb", "csv", "none"] = "wandb"
     #: wandb mode: offline needs no network; sync later with `wandb sync`
     mode: Literal["offline", "online"] = "offline"
-    #: default project/group/name are derived from benchmark, method and seed
+    #: default project/group/name are derived from task, algorithm, method and seed
     project: str | None = None
     group: str | None = None
     name: str | None = None
@@ -114,40 +83,148 @@ class LoggerConfig:
 class EvalConfig:
     #: environment steps between evaluations (0: only at the end)
     interval: int = 0
-    #: deterministic episodes per robot
+    #: episodes per robot
     episodes: int = 10
     #: robots to evaluate (default: the recipe's train and test robots)
     robots: list[str] = field(default_factory=list)
+    #: the policy's mean action (True) or sampled actions (False: ModuMorph's PPO protocol)
+    deterministic: bool = True
     #: render a video of the first robot at each evaluation
     video: bool = False
 
 
+#: algorithm name -> its recipe section (a dataclass); see :func:`register_algorithm_section`
+ALGORITHM_SECTIONS: dict[str, type] = {}
+#: built-in sections, imported when first needed
+_BUILTIN_SECTIONS: dict[str, str] = {
+    "td3": "gcnt.rl.td3_config:TD3Config",
+    "ppo": "gcnt.rl.ppo_config:PPOConfig",
+}
+
+
+def register_algorithm_section(name: str, section: type, *, replace: bool = False) -> None:
+    """Declare the recipe section of algorithm ``name`` (a dataclass, validated like the others
+    when ``algo: name``; the sections of other algorithms are kept but not validated)."""
+    if not dataclasses.is_dataclass(section):
+        raise TypeError(f"the recipe section of {name!r} must be a dataclass, got {section!r}")
+    if name in ALGORITHM_SECTIONS and not replace and ALGORITHM_SECTIONS[name] is not section:
+        raise ValueError(f"algorithm {name!r} already has a recipe section")
+    ALGORITHM_SECTIONS[name] = section
+
+
+def algorithm_names() -> list[str]:
+    return sorted({*ALGORITHM_SECTIONS, *_BUILTIN_SECTIONS})
+
+
+def algorithm_section(name: str) -> type:
+    """The recipe section dataclass of algorithm ``name``."""
+    if name not in ALGORITHM_SECTIONS and name in _BUILTIN_SECTIONS:
+        module, attr = _BUILTIN_SECTIONS[name].split(":")
+        register_algorithm_section(name, getattr(importlib.import_module(module), attr))
+    if name not in ALGORITHM_SECTIONS:
+        raise RecipeError(
+            f"algo: unknown algorithm {name!r}{did_you_mean(name, algorithm_names())} "
+            f"(known: {', '.join(algorithm_names())})"
+        )
+    return ALGORITHM_SECTIONS[name]
+
+
 @dataclass
 class Recipe:
-    #: name used for run names and W&B project/group (e.g. Walker++)
-    benchmark: str = "custom"
+    #: the experiment's label, used in run names and W&B project/group (e.g. Walker++)
+    task: str = "custom"
+    #: the learning algorithm: td3 | ppo; its settings are in the section of the same name
+    algo: str = "td3"
     seed: int = 0
     #: cpu | cuda | cuda:N
     device: str = "cpu"
-    #: run directory (default: runs/<benchmark>/<network>/seed<seed>)
+    #: run directory (default: runs/<task>/<algo>-<network>/seed<seed>)
     run_dir: str | None = None
     #: environment steps between checkpoints
     checkpoint_interval: int = 100_000
-    #: also checkpoint the replay buffers (large; makes resume exact)
-    checkpoint_buffers: bool = False
     env: EnvConfig = field(default_factory=EnvConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
-    replay_buffer: ReplayBufferConfig = field(default_factory=ReplayBufferConfig)
-    optim: OptimConfig = field(default_factory=OptimConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    #: the algorithm sections: the active one validated (a dataclass), others as written
+    sections: dict[str, Any] = field(default_factory=dict)
+    #: sizes the run derived from the recipe (written by the run into its recipe.yaml; read-only)
+    resolved: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def algo_config(self) -> Any:
+        """The validated section of the active algorithm (``recipe.td3`` when ``algo: td3``)."""
+        section = self.sections.get(self.algo)
+        if section is None or isinstance(section, dict):
+            section = _build(algorithm_section(self.algo), section or {}, self.algo)
+            self.sections[self.algo] = section
+        return section
+
+    def __getattr__(self, name: str) -> Any:
+        # recipe.td3 / recipe.ppo: the algorithm's section
+        if name != "sections" and name in self.__dict__.get("sections", {}):
+            if name == self.__dict__.get("algo"):
+                return self.algo_config
+            return self.__dict__["sections"][name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def check(self) -> None:
+        """Values and relations that cannot make a run (checked when the recipe is loaded)."""
+        if self.collector.total_frames < 1:
+            raise ValueError(f"collector.total_frames must be >= 1, got {self.collector.total_frames}")
+        if self.env.copies < 1:
+            raise ValueError(f"env.copies must be >= 1, got {self.env.copies}")
+        if self.env.max_episode_steps < 1:
+            raise ValueError(f"env.max_episode_steps must be >= 1, got {self.env.max_episode_steps}")
+        if self.env.max_limbs is not None and self.env.max_limbs < 1:
+            raise ValueError(f"env.max_limbs must be >= 1, got {self.env.max_limbs}")
+        if self.env.num_threads is not None and self.env.num_threads < 1:
+            raise ValueError(f"env.num_threads must be >= 1, got {self.env.num_threads}")
+        if self.checkpoint_interval < 1:
+            raise ValueError(f"checkpoint_interval must be >= 1, got {self.checkpoint_interval}")
+        if self.logger.log_interval < 1:
+            raise ValueError(f"logger.log_interval must be >= 1, got {self.logger.log_interval}")
+        if self.eval.episodes < 0 or self.eval.interval < 0:
+            raise ValueError("eval.episodes and eval.interval must be >= 0")
+        _check_device(self.device)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == "sections":
+                for algo, section in value.items():
+                    out[algo] = (
+                        dataclasses.asdict(section)
+                        if dataclasses.is_dataclass(section)
+                        else section
+                    )
+            elif f.name == "resolved":
+                if value:
+                    out[f.name] = dict(value)
+            else:
+                out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+        return out
 
 
 # ----------------------------------------------------------------------------- validation
+
+
+def _check_device(device: str) -> None:
+    if device == "cpu":
+        return
+    if not (device == "cuda" or device.startswith("cuda:")):
+        raise ValueError(f"device must be cpu, cuda or cuda:N, got {device!r}")
+    import torch  # only for a GPU recipe
+
+    if not torch.cuda.is_available():
+        raise ValueError(f"device={device!r} but no CUDA GPU is available here; use device=cpu")
+    index = int(device.split(":")[1]) if ":" in device else 0
+    if index >= torch.cuda.device_count():
+        raise ValueError(
+            f"device={device!r} but this machine has {torch.cuda.device_count()} CUDA device(s)"
+        )
 
 
 def _check_type(value: Any, tp: Any, where: str) -> Any:
@@ -200,20 +277,48 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     if not isinstance(data, dict):
         raise RecipeError(f"{where or 'recipe'}: expected a mapping, got {data!r}")
     hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    kwargs = {}
+    names = [f.name for f in dataclasses.fields(cls) if f.name not in _INTERNAL]
+    is_recipe = cls is Recipe
+    if is_recipe:
+        algo = data.get("algo", "td3")
+        if not isinstance(algo, str):
+            raise RecipeError(f"algo: expected an algorithm name, got {algo!r}")
+        algorithm_section(algo)  # an unknown algorithm is an error naming the known ones
+        known = [*names, *algorithm_names()]
+    else:
+        known = names
+    kwargs: dict[str, Any] = {}
+    sections: dict[str, Any] = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else str(key)
+        if is_recipe and key in algorithm_names() and key not in names:
+            # only the active algorithm's section is validated; the others are kept as written
+            sections[key] = _build(algorithm_section(key), value or {}, path) if key == algo else value
+            continue
         if key not in names:
-            close = difflib.get_close_matches(str(key), names, n=1, cutoff=0.5)
-            hint = f"; did you mean {close[0]!r}?" if close else f"; known keys: {', '.join(names)}"
+            hint = did_you_mean(str(key), known) or f"; known keys: {', '.join(known)}"
             raise RecipeError(f"unknown recipe key {path!r}{hint}")
         tp = hints[key]
         if dataclasses.is_dataclass(tp):
             kwargs[key] = _build(tp, value or {}, path)
         else:
             kwargs[key] = _check_type(value, tp, path)
-    return cls(**kwargs)
+    if is_recipe:
+        if algo not in sections:
+            sections[algo] = _build(algorithm_section(algo), {}, algo)
+        kwargs["sections"] = sections
+    obj = cls(**kwargs)
+    check = getattr(obj, "check", None)
+    if callable(check):
+        try:
+            check()
+        except ValueError as e:
+            raise RecipeError(f"{where + ': ' if where else ''}{e}") from None
+    return obj
+
+
+#: Recipe fields that are not written as keys of their own
+_INTERNAL = ("sections",)
 
 
 def _apply_override(data: dict[str, Any], override: str) -> None:

@@ -13,11 +13,6 @@ import json
 import tempfile
 import time
 
-import numpy as np
-
-from gcnt.recipes import load_recipe
-from gcnt.rl.run_dir import RunDir
-from gcnt.rl.td3 import train
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,6 +24,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def learning_check(recipe_path: str, overrides: list[str], seed: int) -> dict:
+    import numpy as np
+
+    from gcnt.recipes import load_recipe
+    from gcnt.rl.loop import train
+    from gcnt.rl.run_dir import RunDir
+
     with tempfile.TemporaryDirectory() as tmp:
         recipe = load_recipe(recipe_path, [*overrides, f"seed={seed}", f"run_dir={tmp}"])
         recipe.logger.backend, recipe.logger.progress = "none", False

@@ -15,13 +15,6 @@ import json
 import tempfile
 import time
 
-import torch
-
-from gcnt.recipes import load_recipe
-from gcnt.rl import replay as rb
-from gcnt.rl.factories import make_env, train_robots
-from gcnt.rl.run_dir import RunDir
-from gcnt.rl.td3 import TD3Learner, train
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,17 +28,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def bare_update_rate(recipe, n_updates: int) -> float:
     """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it."""
+    from gcnt.rl import replay as rb
+    from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import TD3Learner
+
+    c = recipe.td3
     robots = train_robots(recipe)
     env = make_env(recipe, robots)
-    steps = -(-recipe.replay_buffer.batch_size // env.batch_size[0]) + 1
+    steps = -(-c.batch_size // env.batch_size[0]) + 1
     data = env.rollout(steps, break_when_any_done=False)
-    replay = rb.make_replay(
-        len(robots), capacity=data.numel(), batch_size=recipe.replay_buffer.batch_size
-    )
+    replay = rb.make_replay(len(robots), capacity=data.numel(), batch_size=c.batch_size)
     rb.store(replay, data)
-    mixed = recipe.collector.schedule == "mixed"
-    batch = (rb.sample_mixed(replay) if mixed else rb.sample_robot(replay, 0)).clone()
-    learner = TD3Learner(recipe, env.base_env.table)
+    batch = (rb.sample_mixed(replay) if c.schedule == "mixed" else rb.sample_robot(replay, 0))
+    batch = batch.clone()
+    learner = TD3Learner(recipe, env)
     for _ in range(3):
         learner.update(batch)
     t0 = time.perf_counter()
@@ -55,11 +51,14 @@ def bare_update_rate(recipe, n_updates: int) -> float:
 
 
 def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
+    from gcnt.rl.loop import train
+    from gcnt.rl.run_dir import RunDir
+
     with tempfile.TemporaryDirectory() as tmp:
         recipe.run_dir = tmp
-        recipe.collector.init_random_frames = warmup
+        recipe.td3.init_random_frames = warmup
         recipe.collector.total_frames = warmup + steps
-        recipe.collector.steps_per_batch = 1
+        recipe.td3.steps_per_batch = 1
         recipe.logger.backend, recipe.logger.progress = "none", False
         recipe.logger.log_interval = max(1, warmup)
         recipe.checkpoint_interval = 10**12
@@ -80,7 +79,13 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from gcnt.recipes import RecipeError, load_recipe
+
     recipe = load_recipe(args.recipe, args.overrides)
+    if recipe.algo != "td3":
+        raise RecipeError(f"bench-train measures TD3 recipes; {args.recipe} has algo {recipe.algo}")
     bare = bare_update_rate(recipe, args.updates)
     e2e = end_to_end_rate(recipe, args.warmup, args.steps)
     # time per update end to end vs bare: what the env, collector and buffers add to learning
@@ -88,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
     out = {
         "recipe": args.recipe,
         "network": recipe.network.name,
-        "batch_size": recipe.replay_buffer.batch_size,
-        "updates_per_step": recipe.optim.updates_per_step,
+        "batch_size": recipe.td3.batch_size,
+        "updates_per_step": recipe.td3.updates_per_step,
         "threads": torch.get_num_threads(),
         "bare_updates_per_s": bare,
         "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],

@@ -1,12 +1,9 @@
-"""``gcnt train RECIPE [key=value ...]`` and ``gcnt train --resume RUN_DIR``."""
+"""``gcnt train RECIPE [key=value ...]`` and ``gcnt train --resume RUN_DIR [key=value ...]``."""
 
 from __future__ import annotations
 
 import argparse
 import logging
-
-from gcnt.recipes import RecipeError, load_recipe
-from gcnt.rl.run_dir import RunDir
 
 log = logging.getLogger(__name__)
 
@@ -14,30 +11,36 @@ log = logging.getLogger(__name__)
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recipe", nargs="?", help="recipe YAML file (e.g. recipes/smpenv/walker.yaml)")
     p.add_argument(
-        "overrides", nargs="*", help="dotted overrides, e.g. network.name=swat seed=2 optim.lr=3e-4"
+        "overrides",
+        nargs="*",
+        help="dotted overrides, e.g. network.name=swat seed=2 td3.lr=3e-4 algo=ppo",
     )
     p.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR")
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt.rl.td3 import train
+    from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.rl.run_dir import RunDir
 
-    try:
-        if args.resume:
-            overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
-            run_dir = RunDir(args.resume)
-            recipe = run_dir.load_recipe(overrides)
-            train(recipe, run_dir, resume=True)
-        else:
-            if not args.recipe:
-                log.error("give a recipe file or --resume RUN_DIR")
-                return 2
-            recipe = load_recipe(args.recipe, args.overrides)
-            run_dir = RunDir.for_recipe(recipe)
-            run_dir.create(recipe)
-            train(recipe, run_dir)
-    except (RecipeError, FileExistsError, FileNotFoundError) as e:
-        log.error("%s", e)
-        return 2
+    if args.resume:
+        overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
+        run_dir = RunDir(args.resume)
+        recipe = run_dir.load_recipe(overrides)
+        resume = run_dir.has_checkpoint()
+        if not resume:
+            log.info("%s has no checkpoint yet: training it from the start", run_dir.path)
+    else:
+        if not args.recipe:
+            raise RecipeError("give a recipe file or --resume RUN_DIR")
+        recipe = load_recipe(args.recipe, args.overrides)
+        run_dir = RunDir.for_recipe(recipe)
+        resume = False
+    from gcnt.rl.loop import prepare, train
+
+    # robots, env and networks are built (and bad input reported) before anything is written
+    prepared = prepare(recipe)
+    if not args.resume:
+        run_dir.create(recipe)
+    train(recipe, run_dir, resume=resume, prepared=prepared)
     print(f"run directory: {run_dir.path}")
     return 0

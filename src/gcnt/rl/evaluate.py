@@ -1,8 +1,9 @@
-"""Deterministic evaluation: mean ± standard error of the episode return per robot.
+"""Evaluation: mean ± standard error of the episode return per robot, for any algorithm.
 
-The paper's table 1 protocol is 100 episodes per robot and seed. Episodes run in parallel copies of
-each robot; every copy runs a fixed share of the episodes, so early-ending (failed) episodes are
-not over-represented.
+The paper's table 1 protocol is 100 deterministic episodes per robot and seed; ModuMorph's PPO
+protocol is 32 episodes per robot with sampled actions. Episodes run in parallel copies of each
+robot; every copy runs a fixed share of the episodes, so early-ending (failed) episodes are not
+over-represented. The env comes from the recipe's benchmark, the policy from its algorithm.
 """
 
 from __future__ import annotations
@@ -16,43 +17,62 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from gcnt.morphology import Robot
 from gcnt.morphology.benchmarks import resolve_robots
 from gcnt.recipes import Recipe
-from gcnt.rl.factories import make_env, make_net
+from gcnt.rl.algorithm import get_algorithm
+from gcnt.rl.factories import base_env, make_env
+
+
+def eval_robots(specs: Sequence[str]) -> list[Robot]:
+    """The robots of ``specs``, each once (a robot named twice is evaluated once)."""
+    robots: dict[str, Robot] = {}
+    for spec in specs:
+        for r in resolve_robots([spec]):
+            robots.setdefault(r.source, r)
+    return list(robots.values())
+
+
+def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
+    """Pad at least as much as in training: size-dependent networks (the per-robot MLP) need it."""
+    train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
+    return max(train_k, *(r.num_limbs for r in robots))
 
 
 @torch.no_grad()
 def evaluate(
     recipe: Recipe,
-    actor_state: dict,
+    policy_state: dict,
     robot_specs: Sequence[str],
     *,
     episodes: int = 100,
     parallel: int = 10,
     seed: int = 10_000,
+    deterministic: bool = True,
 ) -> dict[str, dict]:
-    """Run the deterministic actor on each robot for ``episodes`` episodes.
+    """Run the recipe's trained policy on each robot for ``episodes`` episodes.
 
-    ``actor_state`` is a state dict of the recipe's actor; the actor is rebuilt for the evaluated
-    robots (any robots, including never-seen robot files), so its graph table matches them.
+    ``policy_state`` is the algorithm's :meth:`~gcnt.rl.algorithm.Algorithm.policy_state` (as in
+    a checkpoint's ``"policy"``); the policy is rebuilt for the evaluated robots (any robots,
+    including never-seen robot files), so its graph table matches them.
     """
-    robots = list({r.name: r for r in resolve_robots(robot_specs)}.values())  # unique, in order
-    # pad at least as much as in training: size-dependent networks (the per-robot MLP) need it
-    train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
-    max_limbs = max(train_k, *(r.num_limbs for r in robots))
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    robots = eval_robots(robot_specs)
     copies = max(1, min(parallel, episodes))
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
-    env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=max_limbs)
-    actor = make_net(recipe, env.base_env.table, "td3_actor")
-    actor.load_state_dict(actor_state)
-    actor.eval()
+    env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
+    actor = get_algorithm(recipe.algo).eval_policy(
+        recipe, policy_state, env, deterministic=deterministic
+    )
 
     n_env = env.batch_size[0]
     target = torch.tensor([quota[i % copies] for i in range(n_env)])
     got = torch.zeros(n_env, dtype=torch.long)
     rets: list[list[float]] = [[] for _ in robots]
     td = env.reset()
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
+    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    with set_exploration_type(mode):
         while bool((got < target).any()):
             td = actor(td)
             td, td_next = env.step_and_maybe_reset(td)
@@ -67,15 +87,36 @@ def evaluate(
     return {r.name: summarize(rets[i]) for i, r in enumerate(robots)}
 
 
+@torch.no_grad()
+def render_policy(
+    recipe: Recipe, policy_state: dict, path: Path, *, robot: str | None = None, steps: int = 300
+) -> Path:
+    """A video of the deterministic policy on ``robot`` (default: the first training robot)."""
+    from gcnt.envs.render import render_rollout
+
+    robots = eval_robots([robot]) if robot else resolve_robots(recipe.env.robots)[:1]
+    env = make_env(recipe, robots, seed=recipe.seed, max_limbs=_pad(recipe, robots), num_threads=1)
+    actor = get_algorithm(recipe.algo).eval_policy(recipe, policy_state, env, deterministic=True)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        out = render_rollout(base_env(env), actor, steps=steps, path=path)
+    env.close()
+    return out
+
+
 def summarize(returns: Sequence[float]) -> dict:
     x = np.asarray(returns, dtype=np.float64)
     stderr = float(x.std(ddof=1) / math.sqrt(len(x))) if len(x) > 1 else float("nan")
     return {"mean": float(x.mean()), "stderr": stderr, "episodes": len(x), "returns": x.tolist()}
 
 
-def write_eval(path: Path, results: dict[str, dict], env_steps: int | None = None) -> Path:
+def write_eval(
+    path: Path, results: dict[str, dict], env_steps: int | None = None, meta: dict | None = None
+) -> Path:
+    """Write results as ``{"env_steps", **meta, "robots": {name: summary}}`` (atomically)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"env_steps": env_steps, "robots": results}, indent=1))
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"env_steps": env_steps, **(meta or {}), "robots": results}, indent=1))
+    tmp.replace(path)
     return path
 
 

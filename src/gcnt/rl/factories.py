@@ -1,30 +1,42 @@
-"""Small ``make_*`` factories that build each part of a run from its recipe."""
+"""Small ``make_*`` factories that build each part of a run from its recipe.
+
+The env comes from the recipe's benchmark (``gcnt.envs.benchmark``); observation and action
+widths are read from the env's specs, so nothing here knows a benchmark's numbers.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from torchrl.envs import RewardSum, TransformedEnv
+from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 
-from gcnt.envs.smpenv import SMPEnv
+from gcnt.envs.benchmark import Benchmark, get_benchmark
 from gcnt.morphology import Robot
 from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.nn.keys import ACTION, OBS
 from gcnt.nn.registry import make_network
-from gcnt.recipes import Recipe
+from gcnt.recipes import Recipe, RecipeError
 
-OBS_DIM = 19  # SMPENV limb observation
-NUM_ACTIONS = 1  # one hinge per SMPENV limb
+#: root key of the height map, when a benchmark's world has one
+HFIELD = "hfield"
+
+
+def benchmark_of(recipe: Recipe) -> Benchmark:
+    try:
+        bench = get_benchmark(recipe.env.benchmark)
+        bench.check_world(recipe.env.world)
+    except ValueError as e:
+        raise RecipeError(f"env: {e}") from None
+    return bench
 
 
 def train_robots(recipe: Recipe) -> list[Robot]:
-    robots = resolve_robots(recipe.env.robots)
-    names = [r.name for r in robots]
-    dupes = {n for n in names if names.count(n) > 1}
-    if dupes:
-        raise ValueError(f"env.robots lists {sorted(dupes)} more than once; use env.copies")
-    return robots
+    """The recipe's training robots (a repeated robot is an error: use ``env.copies``)."""
+    if not recipe.env.robots:
+        raise RecipeError("env.robots is empty: name at least one robot to train on")
+    return resolve_robots(recipe.env.robots)
 
 
 def make_env(
@@ -34,33 +46,58 @@ def make_env(
     copies: int = 1,
     seed: int | None = None,
     max_limbs: int | None = None,
+    num_threads: int | None = None,
 ) -> TransformedEnv:
-    """The batched env over ``copies`` of each robot, with per-episode returns tracked.
+    """The benchmark's batched env over ``copies`` of each robot, with episode returns tracked.
 
     Instance i·copies + c is copy c of robot i; its ``morph_id`` is i.
     """
+    bench = benchmark_of(recipe)
     instances = [r for r in robots for _ in range(copies)]
     ids = [i for i in range(len(robots)) for _ in range(copies)]
-    env = SMPEnv(
+    env = bench.make_env(
         instances,
         max_limbs=max_limbs or recipe.env.max_limbs,
         max_episode_steps=recipe.env.max_episode_steps,
         seed=recipe.seed if seed is None else seed,
-        num_threads=recipe.env.num_threads,
+        num_threads=num_threads if num_threads is not None else recipe.env.num_threads,
         robot_ids=ids,
+        world=bench.check_world(recipe.env.world),
     )
     return TransformedEnv(env, RewardSum())
 
 
-def make_net(recipe: Recipe, table: TensorDictBase, role: str) -> TensorDictModuleBase:
-    """One network of the recipe's method for ``role`` (td3_actor, td3_critic, ...)."""
+def base_env(env: EnvBase) -> EnvBase:
+    return env.base_env if isinstance(env, TransformedEnv) else env
+
+
+def env_widths(env: EnvBase) -> dict[str, int]:
+    """Per-limb observation width, action slots per limb and height-map width (0: none)."""
+    obs_spec = env.observation_spec
+    keys = obs_spec.keys(True, True)
+    return {
+        "obs_dim": int(obs_spec[OBS].shape[-1]),
+        "num_actions": int(env.full_action_spec[ACTION].shape[-1]),
+        "hfield_dim": int(obs_spec[HFIELD].shape[-1]) if HFIELD in keys else 0,
+    }
+
+
+def make_net(
+    recipe: Recipe, env: EnvBase, role: str, **extra: Any
+) -> TensorDictModuleBase:
+    """One network of the recipe's method for ``role`` (td3_actor, ppo_critic, ...) over the
+    robots of ``env``'s robot table, sized from ``env``'s specs."""
     net = recipe.network
+    widths = env_widths(env)
+    if widths["hfield_dim"]:
+        extra.setdefault("hfield_dim", widths["hfield_dim"])
     return make_network(
         net.name,
         role,
-        table=table,
-        obs_dim=OBS_DIM,
-        num_actions=NUM_ACTIONS,
-        preset=net.preset,
+        table=base_env(env).table,
+        obs_dim=widths["obs_dim"],
+        num_actions=widths["num_actions"],
+        preset=net.preset or benchmark_of(recipe).preset,
+        **extra,
         **net.kwargs,
     ).to(recipe.device)

@@ -26,6 +26,10 @@ METRICS_FILE = "metrics.jsonl"
 CHECKPOINT = "checkpoints/last.pt"
 
 
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, unreadable or does not fit the run's networks."""
+
+
 class RunDir:
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -35,7 +39,8 @@ class RunDir:
         """The recipe's ``run_dir``, or a fresh ``runs/<benchmark>/<method>/seed<seed>[-N]``."""
         if recipe.run_dir:
             return cls(recipe.run_dir)
-        base = Path("runs") / recipe.benchmark / recipe.network.name / f"seed{recipe.seed}"
+        method = f"{recipe.algo}-{recipe.network.name}"
+        base = Path("runs") / _slug(recipe.task) / method / f"seed{recipe.seed}"
         path, n = base, 1
         while (path / CHECKPOINT).exists() or (path / RECIPE_FILE).exists():
             path, n = base.with_name(f"{base.name}-{n}"), n + 1
@@ -54,16 +59,28 @@ class RunDir:
     def checkpoint_path(self) -> Path:
         return self.path / CHECKPOINT
 
+    @property
+    def buffers_dir(self) -> Path:
+        """Where an algorithm may checkpoint large data (replay buffers)."""
+        return self.path / "checkpoints" / "buffers"
+
     def create(self, recipe: Recipe) -> None:
-        if self.checkpoint_path.exists():
+        """Make the directory and write the recipe; an existing run is never overwritten."""
+        if self.checkpoint_path.exists() or self.recipe_path.exists() or self.metrics_path.exists():
             raise FileExistsError(
                 f"{self.path} already holds a run; continue it with `gcnt train --resume "
                 f"{self.path}` or choose another run_dir=..."
             )
         (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
+        self.save_recipe(recipe)
+
+    def save_recipe(self, recipe: Recipe) -> None:
+        """Write the resolved recipe (atomically: a killed run keeps the previous file)."""
         recipe.run_dir = str(self.path)
-        save_recipe(recipe, self.recipe_path)
-        self.metrics_path.unlink(missing_ok=True)
+        self.path.mkdir(parents=True, exist_ok=True)
+        tmp = self.recipe_path.with_suffix(".tmp")
+        save_recipe(recipe, tmp)
+        os.replace(tmp, self.recipe_path)
 
     def load_recipe(self, overrides: list[str] | None = None) -> Recipe:
         if not self.recipe_path.exists():
@@ -96,10 +113,23 @@ class RunDir:
         os.replace(tmp, self.checkpoint_path)
         log.debug("checkpoint at %s env steps", state.get("env_steps"))
 
+    def has_checkpoint(self) -> bool:
+        return self.checkpoint_path.exists()
+
     def load_checkpoint(self, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+        """The last checkpoint; a missing or unreadable file is a CheckpointError naming it."""
         if not self.checkpoint_path.exists():
-            raise FileNotFoundError(f"{self.path}: no checkpoint ({CHECKPOINT})")
-        return torch.load(self.checkpoint_path, map_location=map_location, weights_only=False)
+            raise CheckpointError(f"{self.path}: no checkpoint ({CHECKPOINT})")
+        try:
+            state = torch.load(self.checkpoint_path, map_location=map_location, weights_only=False)
+        except Exception as e:  # torch raises many kinds for a truncated or foreign file
+            raise CheckpointError(
+                f"{self.checkpoint_path}: not a readable gcnt checkpoint ({type(e).__name__}: "
+                f"{str(e).splitlines()[0] if str(e) else 'no detail'})"
+            ) from None
+        if not isinstance(state, dict) or "env_steps" not in state:
+            raise CheckpointError(f"{self.checkpoint_path}: not a gcnt checkpoint")
+        return state
 
 
 def rng_state() -> dict[str, Any]:
@@ -126,7 +156,7 @@ def make_logger(recipe: Recipe, run: RunDir):
     """torchrl logger per the recipe (None for backend "none")."""
     cfg = recipe.logger
     method = recipe.network.name
-    name = cfg.name or f"{recipe.benchmark}-{method}-seed{recipe.seed}"
+    name = cfg.name or f"{recipe.task}-{recipe.algo}-{method}-seed{recipe.seed}"
     if cfg.backend == "none":
         return None
     if cfg.backend == "csv":
@@ -136,15 +166,15 @@ def make_logger(recipe: Recipe, run: RunDir):
     from torchrl.record.loggers import WandbLogger
 
     os.environ.setdefault("WANDB_SILENT", "true")
-    project = cfg.project or f"gcnt-{_slug(recipe.benchmark)}"
-    group = cfg.group or f"{recipe.benchmark}-{method}"
+    project = cfg.project or f"gcnt-{_slug(recipe.env.benchmark)}"
+    group = cfg.group or f"{recipe.task}-{recipe.algo}-{method}"
     return WandbLogger(
         exp_name=name,
         offline=cfg.mode == "offline",
         save_dir=str(run.path),
         project=project,
         group=group,
-        config=recipe.to_dict(),
+        config={**recipe.to_dict(), "method": method},
         # stable across processes, so a resumed run continues the same W&B run
         id=_slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}"),
         resume="allow",

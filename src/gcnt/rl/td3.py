@@ -1,10 +1,11 @@
-"""TD3 on SMPENV: one policy for many robots, read top to bottom.
+"""TD3 for one policy over many robots, behind the algorithm seam (``gcnt.rl.algorithm``).
 
-Built from torchrl parts: the batched ``SMPEnv`` stepped by a ``Collector``, per-robot replay
-buffers (``ReplayBufferEnsemble`` routed by ``morph_id``), ``TD3Loss`` with per-limb twin critics
-(see ``td3_loss``), ``SoftUpdate`` targets and Gaussian exploration (``AdditiveGaussianModule``).
+Built from torchrl parts: per-robot replay buffers (``ReplayBufferEnsemble`` routed by
+``morph_id``), ``TD3Loss`` with per-limb twin critics (see ``td3_loss``), ``SoftUpdate`` targets
+and Gaussian exploration (``AdditiveGaussianModule``); the shared run loop (``gcnt.rl.loop``)
+collects the batches. Settings: the ``td3:`` recipe section (``gcnt.rl.td3_config``).
 
-Two update schedules (``collector.schedule``):
+Two update schedules (``td3.schedule``):
 
 * ``paper``: robots step in lockstep until every robot has finished an episode; then each robot in
   turn gets as many updates as it stored transitions, each from its own buffer.
@@ -12,34 +13,32 @@ Two update schedules (``collector.schedule``):
   ``batch_size`` transitions of every robot: the same samples per stored step as ``paper``, in
   one forward pass per update instead of one per robot.
 
-Every stored environment step is counted (``env_steps``), over all robots.
+Every stored environment step is counted, over all robots.
 """
 
 from __future__ import annotations
 
 import logging
-import time
-from collections import defaultdict
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
-from torchrl.collectors import Collector
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.envs import EnvBase
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import SoftUpdate
-from tqdm import tqdm
-from tqdm.contrib.logging import logging_redirect_tqdm
 
+from gcnt.morphology import Robot
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.keys import ACTION
 from gcnt.recipes import Recipe
 from gcnt.rl import replay as rb
-from gcnt.rl.evaluate import evaluate, write_eval
-from gcnt.rl.factories import make_env, make_net, train_robots
-from gcnt.rl.run_dir import RunDir, make_logger, seed_everything, set_rng_state
+from gcnt.rl.algorithm import Algorithm, CollectSettings
+from gcnt.rl.factories import make_net
+from gcnt.rl.td3_config import TD3Config
 from gcnt.rl.td3_loss import actor_loss, critic_loss, make_td3_loss
 
 log = logging.getLogger(__name__)
@@ -48,13 +47,13 @@ log = logging.getLogger(__name__)
 class TD3Learner:
     """Networks, loss, optimisers and the update step; no env, no buffer (benchmarkable alone)."""
 
-    def __init__(self, recipe: Recipe, table: TensorDictBase):
-        o = recipe.optim
-        self.recipe = recipe
-        self.actor = make_net(recipe, table, "td3_actor")
+    def __init__(self, recipe: Recipe, env: EnvBase):
+        o: TD3Config = recipe.algo_config
+        self.recipe, self.config = recipe, o
+        self.actor = make_net(recipe, env, "td3_actor")
         # two independently initialised critics (given one, TD3Loss re-draws the twin's weights
         # uniformly between each tensor's min and max, losing the layers' own init schemes)
-        self.critics = [make_net(recipe, table, "td3_critic") for _ in range(2)]
+        self.critics = [make_net(recipe, env, "td3_critic") for _ in range(2)]
         self.loss = make_td3_loss(
             self.actor,
             self.critics,
@@ -72,7 +71,7 @@ class TD3Learner:
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One critic update, plus an actor and target update every ``policy_delay`` calls."""
-        o = self.recipe.optim
+        o = self.config
         batch = self.lookup(batch.to(self.recipe.device))  # restore the static graph keys
         q_loss = critic_loss(self.loss, batch)
         self.critic_opt.zero_grad(set_to_none=True)
@@ -105,11 +104,15 @@ class TD3Learner:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        missing, unexpected = self.loss.load_state_dict(state["loss"], strict=False)
+        try:
+            missing, unexpected = self.loss.load_state_dict(state["loss"], strict=False)
+        except RuntimeError as e:  # a tensor of another shape: the recipe's sizes changed
+            raise ValueError(f"the checkpoint does not fit the recipe's networks: {e}") from None
         missing = [k for k in missing if not is_table_key(k)]
         if missing or unexpected:
-            raise KeyError(
-                f"checkpoint does not fit the networks: missing {missing}, unexpected {unexpected}"
+            raise ValueError(
+                f"the checkpoint does not fit the recipe's networks: missing {missing[:5]}, "
+                f"unexpected {unexpected[:5]}"
             )
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
@@ -119,9 +122,9 @@ class TD3Learner:
 class UpdateSchedule:
     """When to update and on what: yields the mini-batches of each update phase."""
 
-    def __init__(self, recipe: Recipe, num_robots: int):
-        self.kind = recipe.collector.schedule
-        self.updates_per_step = recipe.optim.updates_per_step
+    def __init__(self, config: TD3Config, num_robots: int):
+        self.kind = config.schedule
+        self.updates_per_step = config.updates_per_step
         self.pending = np.zeros(num_robots)  # transitions stored since the last update phase
         self.finished = np.zeros(num_robots, dtype=bool)  # robot ended an episode since then
 
@@ -149,212 +152,126 @@ class UpdateSchedule:
         self.pending[:] = 0
 
 
-class TrainStats:
-    """Episode returns per robot, losses and rates between two log lines."""
+class TD3(Algorithm):
+    """TD3 behind the run loop: exploration, replay, update schedule, checkpoint state."""
 
-    def __init__(self, names: list[str], env_steps: int, updates: int):
-        self.names = names
-        self.returns: dict[int, list[float]] = defaultdict(list)
-        self.losses: dict[str, list[float]] = defaultdict(list)
-        self.t, self.env_steps, self.updates = time.perf_counter(), env_steps, updates
+    name = "td3"
 
-    def add_episodes(self, data: TensorDictBase) -> None:
-        done = data["next", "done"].squeeze(-1)
-        robots = data["morph_id"][done].tolist()
-        rets = data["next", "episode_reward"].squeeze(-1)[done].tolist()
-        for robot, ret in zip(robots, rets, strict=True):
-            self.returns[robot].append(ret)
+    def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:
+        super().__init__(recipe, env, robots)
+        c: TD3Config = self.config
+        n = len(self.robots)
+        self.learner = TD3Learner(recipe, env)
+        capacity = rb.per_robot_capacity(n, c.buffer_size_per_robot, c.buffer_total_size)
+        self.replay = rb.make_replay(n, capacity, c.batch_size)
+        self.schedule = UpdateSchedule(c, n)
+        self.stored = 0
 
-    def add_losses(self, losses: dict[str, float]) -> None:
-        for k, v in losses.items():
-            self.losses[k].append(v)
+    @property
+    def updates(self) -> int:  # the learner counts them
+        return self.learner.updates
 
-    def row(self, env_steps: int, updates: int) -> dict:
-        now = time.perf_counter()
-        row = {
-            "env_steps": env_steps,
-            "updates": updates,
-            "env_steps_per_s": (env_steps - self.env_steps) / (now - self.t),
-            "updates_per_s": (updates - self.updates) / (now - self.t),
-            **{k: float(np.mean(v)) for k, v in self.losses.items()},
-        }
-        per_robot = {
-            f"train_return/{self.names[k]}": float(np.mean(v)) for k, v in self.returns.items()
-        }
-        if per_robot:
-            row["train_return/mean"] = float(np.mean(list(per_robot.values())))
-        row.update(per_robot)
-        self.returns.clear()
-        self.losses.clear()
-        self.t, self.env_steps, self.updates = now, env_steps, updates
-        return row
+    @updates.setter
+    def updates(self, value: int) -> None:
+        if hasattr(self, "learner"):
+            self.learner.updates = value
 
+    def _frames_per_batch(self) -> int:
+        return self.env.batch_size[0] * self.config.steps_per_batch
 
-def train(recipe: Recipe, run: RunDir, *, resume: bool = False) -> RunDir:
-    """Train per ``recipe`` into ``run`` (continuing its checkpoint when ``resume``)."""
-    c, r = recipe.collector, recipe.replay_buffer
-    seed_everything(recipe.seed)
-    robots = train_robots(recipe)
-    num_robots = len(robots)
-    env = make_env(recipe, robots, copies=recipe.env.copies)
-    learner = TD3Learner(recipe, env.base_env.table)
-    replay = rb.make_replay(
-        num_robots, rb.per_robot_capacity(num_robots, r.size_per_robot, r.total_size), r.batch_size
-    )
-
-    env_steps = 0
-    if resume:
-        state = run.load_checkpoint(map_location=recipe.device)
-        learner.load_state_dict(state["learner"])
-        env_steps = state["env_steps"]
-        set_rng_state(state["rng"])
-        buffers = run.path / "checkpoints" / "replay"
-        if state.get("has_buffers") and buffers.exists():
-            for i in range(num_robots):
-                replay[i].loads(buffers / str(i))
-        run.truncate_metrics(env_steps)
-        log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, learner.updates)
-        env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume
-    next_log = _next_multiple(env_steps, recipe.logger.log_interval)
-    next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
-    next_eval = _next_multiple(env_steps, recipe.eval.interval) if recipe.eval.interval else None
-
-    explore = TensorDictSequential(
-        learner.actor,
-        AdditiveGaussianModule(
-            env.full_action_spec[ACTION].to(recipe.device),
-            sigma_init=c.exploration_noise,
-            sigma_end=c.exploration_noise,
-            annealing_num_steps=1,
-            action_key=ACTION,
-        ),
-    )
-    num_envs = env.batch_size[0]
-    frames_per_batch = num_envs * c.steps_per_batch
-    random_left = max(0, c.init_random_frames - env_steps)
-    random_left = -(-random_left // frames_per_batch) * frames_per_batch  # whole collector batches
-    collector = Collector(
-        env,
-        explore,
-        frames_per_batch=frames_per_batch,
-        total_frames=-1,
-        init_random_frames=random_left,
-        policy_device=recipe.device,  # networks on the recipe's device, MuJoCo on the CPU
-        env_device="cpu",
-        storing_device="cpu",
-        auto_register_policy_transforms=False,  # the policy needs no InitTracker
-    )
-    logger = make_logger(recipe, run)
-
-    schedule = UpdateSchedule(recipe, num_robots)
-    stats = TrainStats([robot.name for robot in robots], env_steps, learner.updates)
-    bar = tqdm(
-        total=c.total_frames, initial=env_steps, unit="step", disable=not recipe.logger.progress
-    )
-    # log lines go above the progress bar instead of through it
-    with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
-        try:
-            for data in collector:
-                env_steps += rb.store(replay, data)
-                bar.update(data.numel())
-                stats.add_episodes(data)
-                schedule.add(data)
-                warm = env_steps >= c.init_random_frames and all(
-                    len(replay[i]) >= r.batch_size for i in range(num_robots)
-                )
-                for batch in schedule.batches(replay, warm):
-                    stats.add_losses(learner.update(batch))
-
-                last = env_steps >= c.total_frames
-                if env_steps >= next_log or last:
-                    row = stats.row(env_steps, learner.updates)
-                    _log_row(run, logger, row)
-                    bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
-                    next_log = _next_multiple(env_steps, recipe.logger.log_interval)
-                if env_steps >= next_ckpt or last:
-                    _checkpoint(
-                        run, learner, replay, env_steps, num_robots, recipe.checkpoint_buffers
-                    )
-                    next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
-                if next_eval is not None and env_steps >= next_eval and not last:
-                    _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
-                    next_eval = _next_multiple(env_steps, recipe.eval.interval)
-                if last:
-                    break
-        finally:
-            bar.close()
-            collector.shutdown()
-    _evaluate(recipe, run, learner, logger, env_steps, video=recipe.eval.video)
-    if (
-        logger is not None
-        and hasattr(logger, "experiment")
-        and hasattr(logger.experiment, "finish")
-    ):
-        logger.experiment.finish()
-    return run
-
-
-def _next_multiple(x: int, every: int) -> int:
-    return (x // every + 1) * every if every > 0 else 2**62
-
-
-def _log_row(run: RunDir, logger, row: dict) -> None:
-    run.log_metrics(row)
-    if logger is not None:
-        for k, v in row.items():
-            if k != "env_steps":
-                logger.log_scalar(k, v, step=row["env_steps"])
-    log.info(
-        "env_steps %d  updates %d  return %.1f  %.0f steps/s",
-        row["env_steps"],
-        row["updates"],
-        row.get("train_return/mean", float("nan")),
-        row["env_steps_per_s"],
-    )
-
-
-def _checkpoint(run: RunDir, learner, replay, env_steps: int, num_robots: int, buffers: bool):
-    if buffers:
-        for i in range(num_robots):
-            replay[i].dumps(run.path / "checkpoints" / "replay" / str(i))
-    run.save_checkpoint(
-        {
-            "learner": learner.state_dict(),
-            "actor": learner.actor.state_dict(),  # for `gcnt eval` without rebuilding the loss
-            "env_steps": env_steps,
-            "has_buffers": buffers,
-        }
-    )
-
-
-def _evaluate(
-    recipe: Recipe, run: RunDir, learner: TD3Learner, logger, env_steps: int, video: bool
-):
-    specs = recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
-    if recipe.eval.episodes <= 0 or not specs:
-        return
-    results = evaluate(recipe, learner.actor.state_dict(), specs, episodes=recipe.eval.episodes)
-    path = write_eval(run.path / "eval" / f"step{env_steps}.json", results, env_steps)
-    if logger is not None:
-        for name, res in results.items():
-            logger.log_scalar(f"eval_return/{name}", res["mean"], step=env_steps)
-    log.info("eval at %d steps written to %s", env_steps, Path(path))
-    if video:
-        _render(recipe, run, learner, env_steps)
-
-
-@torch.no_grad()
-def _render(recipe: Recipe, run: RunDir, learner: TD3Learner, env_steps: int) -> None:
-    """A video of the deterministic policy on the first training robot (morph_id 0)."""
-    from gcnt.envs import SMPEnv
-    from gcnt.envs.render import render_rollout
-
-    robot = train_robots(recipe)[0]
-    k = learner.lookup.num_limbs  # pad like the policy's robot table
-    env = SMPEnv([robot], max_limbs=k, seed=recipe.seed, num_threads=1)
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        out = render_rollout(
-            env, learner.actor, steps=300, path=run.path / "videos" / f"step{env_steps}.mp4"
+    def collect_settings(self, env_steps: int) -> CollectSettings:
+        c, device = self.config, self.recipe.device
+        explore = TensorDictSequential(
+            self.learner.actor,
+            AdditiveGaussianModule(
+                self.env.full_action_spec[ACTION].to(device),
+                sigma_init=c.exploration_noise,
+                sigma_end=c.exploration_noise,
+                annealing_num_steps=1,
+                action_key=ACTION,
+            ),
         )
-    env.close()
-    log.info("video of %s written to %s", robot.name, out)
+        fpb = self._frames_per_batch()
+        random_left = max(0, c.init_random_frames - env_steps)
+        random_left = -(-random_left // fpb) * fpb  # whole collector batches
+        return CollectSettings(explore, fpb, random_left)
+
+    def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
+        c = self.config
+        self.stored += rb.store(self.replay, data)
+        self.schedule.add(data)
+        warm = env_steps >= c.init_random_frames and all(
+            len(self.replay[i]) >= c.batch_size for i in range(len(self.robots))
+        )
+        for batch in self.schedule.batches(self.replay, warm):
+            yield self.learner.update(batch)
+
+    def resolved(self) -> dict[str, Any]:
+        c, fpb = self.config, self._frames_per_batch()
+        return {
+            "num_envs": int(self.env.batch_size[0]),
+            "frames_per_batch": fpb,
+            "init_random_frames": -(-c.init_random_frames // fpb) * fpb,
+            "buffer_per_robot": rb.per_robot_capacity(
+                len(self.robots), c.buffer_size_per_robot, c.buffer_total_size
+            ),
+        }
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.learner.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.learner.load_state_dict(state)
+
+    def buffers_state(self, directory: Path) -> bool:
+        if not self.config.checkpoint_buffers:
+            return False
+        for i in range(len(self.robots)):
+            path = Path(directory) / str(i)
+            path.mkdir(parents=True, exist_ok=True)
+            self.replay[i].dumps(path)
+        return True
+
+    def load_buffers(self, directory: Path) -> None:
+        for i in range(len(self.robots)):
+            path = Path(directory) / str(i)
+            if path.exists():
+                self.replay[i].loads(path)
+
+    def policy_state(self) -> dict[str, Any]:
+        actor = self.learner.actor.state_dict()
+        return {"actor": {k: v for k, v in actor.items() if not is_table_key(k)}}
+
+    @classmethod
+    def eval_policy(
+        cls, recipe: Recipe, state: dict[str, Any], env: EnvBase, *, deterministic: bool = True
+    ):
+        actor = make_net(recipe, env, "td3_actor")
+        _load_weights(actor, state["actor"])
+        actor.eval()
+        if deterministic:
+            return actor
+        return TensorDictSequential(
+            actor,
+            AdditiveGaussianModule(
+                env.full_action_spec[ACTION].to(recipe.device),
+                sigma_init=recipe.algo_config.exploration_noise,
+                sigma_end=recipe.algo_config.exploration_noise,
+                annealing_num_steps=1,
+                action_key=ACTION,
+            ),
+        )
+
+
+def _load_weights(module: torch.nn.Module, weights: dict) -> None:
+    """Load network weights (the robot table is rebuilt, not loaded); a mismatch names itself."""
+    try:
+        missing, unexpected = module.load_state_dict(weights, strict=False)
+    except RuntimeError as e:
+        raise ValueError(f"the checkpoint does not fit the recipe's network: {e}") from None
+    missing = [k for k in missing if not is_table_key(k)]
+    if missing or unexpected:
+        raise ValueError(
+            f"the checkpoint does not fit the recipe's network: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )

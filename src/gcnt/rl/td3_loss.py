@@ -7,7 +7,8 @@ samples, never limbs:
 * the TD target is per robot: ``r + γ (1 - terminated) · mean over real limbs of min(Q1', Q2')``,
   and every real limb's Q is regressed to it (``PerRobotTD0``);
 * losses come back unreduced (``reduction="none"``, one value per limb) and are averaged over the
-  limbs that carry a motor (the torso and padding are excluded) with :func:`masked_mean`.
+  robot's real limbs with :func:`gcnt.nn.masking.limb_mean` — the same limbs the critic's own
+  per-robot Q averages over — then over the batch.
 """
 
 from __future__ import annotations
@@ -17,27 +18,21 @@ from tensordict import TensorDictBase
 from torchrl.objectives import TD3Loss
 from torchrl.objectives.value import TD0Estimator
 
-from gcnt.nn.keys import ACTION, ACTION_MASK, LIMB_Q
-
-
-def limb_mask(td: TensorDictBase) -> torch.Tensor:
-    """[*B, K] bool: limbs that carry at least one motor."""
-    return td.get(ACTION_MASK).any(-1)
+from gcnt.nn.keys import ACTION, LIMB_Q, MASK
+from gcnt.nn.masking import limb_mean
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean over the True entries of ``mask`` (values and mask broadcast to the same shape)."""
-    mask = mask.expand_as(values).to(values.dtype)
-    return (values * mask).sum() / mask.sum().clamp_min(1.0)
+    """Mean over robots of the per-robot :func:`limb_mean` of per-limb ``values`` [*B, K]."""
+    return limb_mean(values.unsqueeze(-1), mask).mean()
 
 
 class PerRobotTD0(TD0Estimator):
-    """TD(0) target from the masked mean of the per-limb next Q (shape [*B, 1, 1])."""
+    """TD(0) target from the per-robot mean over real limbs of the next Q (shape [*B, 1, 1])."""
 
     def value_estimate(self, tensordict, target_params=None, next_value=None, **kwargs):
         q_next = tensordict.get(("next", self.tensor_keys.value))  # [*B, K, 1]
-        mask = limb_mask(tensordict).unsqueeze(-1).to(q_next.dtype)  # [*B, K, 1]
-        v_next = (q_next * mask).sum(-2) / mask.sum(-2).clamp_min(1.0)  # [*B, 1]
+        v_next = limb_mean(q_next, tensordict.get(MASK))  # [*B, 1]
         target = super().value_estimate(tensordict, next_value=v_next, **kwargs)
         return target.unsqueeze(-1)  # the loss squeezes the last dim and broadcasts over limbs
 
@@ -74,12 +69,12 @@ def make_td3_loss(
 
 
 def critic_loss(loss: TD3Loss, batch: TensorDictBase) -> torch.Tensor:
-    """Twin-critic loss averaged over motor limbs; ``batch`` must hold the static keys."""
+    """Twin-critic loss averaged over real limbs; ``batch`` must hold the static keys."""
     per_limb, _ = loss.value_loss(batch)  # [*B, K]
-    return masked_mean(per_limb, limb_mask(batch))
+    return masked_mean(per_limb, batch.get(MASK))
 
 
 def actor_loss(loss: TD3Loss, batch: TensorDictBase) -> torch.Tensor:
-    """-Q1 of the actor's action, averaged over motor limbs."""
+    """-Q1 of the actor's action, averaged over real limbs."""
     per_limb, _ = loss.actor_loss(batch)  # [*B, K]
-    return masked_mean(per_limb, limb_mask(batch))
+    return masked_mean(per_limb, batch.get(MASK))

@@ -1,0 +1,268 @@
+"""The run loop every algorithm shares, read top to bottom.
+
+``train(recipe, run)`` seeds everything, builds the benchmark's env over the training robots and
+the recipe's algorithm (``gcnt.rl.algorithm``), then collects batches with a torchrl
+``Collector`` and hands each to the algorithm, logging per-robot episode returns and the
+algorithm's losses, checkpointing atomically (with RNG state), evaluating and rendering videos.
+``train(recipe, run, resume=True)`` continues from the run's last checkpoint.
+
+Every collected environment step is counted (``env_steps``), over all robots.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import EnvBase
+from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
+
+from gcnt.morphology import Robot
+from gcnt.recipes import Recipe
+from gcnt.rl.algorithm import Algorithm, get_algorithm
+from gcnt.rl.evaluate import evaluate, render_policy, write_eval
+from gcnt.rl.factories import make_env, train_robots
+from gcnt.rl.run_dir import RunDir, make_logger, seed_everything, set_rng_state
+
+log = logging.getLogger(__name__)
+
+
+class TrainStats:
+    """Episode returns per robot, losses and rates between two log lines."""
+
+    def __init__(self, names: list[str], env_steps: int, updates: int):
+        self.names = names
+        self.returns: dict[int, list[float]] = defaultdict(list)
+        self.losses: dict[str, list[float]] = defaultdict(list)
+        self.t, self.env_steps, self.updates = time.perf_counter(), env_steps, updates
+
+    def add_episodes(self, data: TensorDictBase) -> None:
+        done = data["next", "done"].squeeze(-1)
+        robots = data["morph_id"][done].tolist()
+        rets = data["next", "episode_reward"].squeeze(-1)[done].tolist()
+        for robot, ret in zip(robots, rets, strict=True):
+            self.returns[robot].append(ret)
+
+    def add_losses(self, losses: dict[str, float]) -> None:
+        for k, v in losses.items():
+            self.losses[k].append(v)
+
+    def row(self, env_steps: int, updates: int) -> dict:
+        now = time.perf_counter()
+        row = {
+            "env_steps": env_steps,
+            "updates": updates,
+            "env_steps_per_s": (env_steps - self.env_steps) / (now - self.t),
+            "updates_per_s": (updates - self.updates) / (now - self.t),
+            **{k: float(np.mean(v)) for k, v in self.losses.items()},
+        }
+        per_robot = {
+            f"train_return/{self.names[k]}": float(np.mean(v)) for k, v in self.returns.items()
+        }
+        if per_robot:
+            row["train_return/mean"] = float(np.mean(list(per_robot.values())))
+        row.update(per_robot)
+        self.returns.clear()
+        self.losses.clear()
+        self.t, self.env_steps, self.updates = now, env_steps, updates
+        return row
+
+
+@dataclass
+class Prepared:
+    """A run's robots, training env and algorithm, built before its directory is touched."""
+
+    robots: list[Robot]
+    env: EnvBase
+    algo: Algorithm
+
+
+def prepare(recipe: Recipe) -> Prepared:
+    """Seed, then build the robots, the benchmark's env and the algorithm (bad input fails
+    here, before anything is written); the derived sizes go to ``recipe.resolved``."""
+    seed_everything(recipe.seed)
+    robots = train_robots(recipe)
+    algo_cls = get_algorithm(recipe.algo)
+    env = make_env(recipe, robots, copies=algo_cls.train_env_copies(recipe, len(robots)))
+    try:
+        algo = algo_cls(recipe, env, robots)
+    except BaseException:
+        env.close()
+        raise
+    recipe.resolved = algo.resolved()
+    return Prepared(robots, env, algo)
+
+
+def train(
+    recipe: Recipe, run: RunDir, *, resume: bool = False, prepared: Prepared | None = None
+) -> RunDir:
+    """Train per ``recipe`` into ``run`` (continuing its checkpoint when ``resume``).
+
+    ``prepared`` is :func:`prepare`'s result for this recipe (built here when not given).
+    """
+    prepared = prepared or prepare(recipe)
+    robots, env, algo = prepared.robots, prepared.env, prepared.algo
+    run.save_recipe(recipe)
+
+    env_steps = 0
+    if resume:
+        state = run.load_checkpoint(map_location=recipe.device)
+        algo.load_state_dict(state["learner"])
+        env_steps = state["env_steps"]
+        set_rng_state(state["rng"])
+        if state.get("has_buffers"):
+            algo.load_buffers(run.buffers_dir)
+        run.truncate_metrics(env_steps)
+        log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, algo.updates)
+        env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume
+    total = recipe.collector.total_frames
+    next_log = _next_multiple(env_steps, recipe.logger.log_interval)
+    next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
+    next_eval = _next_multiple(env_steps, recipe.eval.interval) if recipe.eval.interval else None
+
+    logger = make_logger(recipe, run)
+    stats = TrainStats([robot.name for robot in robots], env_steps, algo.updates)
+    if env_steps < total:
+        settings = algo.collect_settings(env_steps)
+        collector = Collector(
+            env,
+            settings.policy,
+            frames_per_batch=settings.frames_per_batch,
+            total_frames=-1,
+            init_random_frames=settings.init_random_frames,
+            policy_device=recipe.device,  # networks on the recipe's device, MuJoCo on the CPU
+            env_device="cpu",
+            storing_device="cpu",
+            auto_register_policy_transforms=False,  # the policies need no InitTracker
+        )
+        bar = tqdm(total=total, initial=env_steps, unit="step", disable=not recipe.logger.progress)
+        # log lines go above the progress bar instead of through it
+        with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
+            try:
+                for data in collector:
+                    env_steps += data.numel()
+                    bar.update(data.numel())
+                    stats.add_episodes(data)
+                    for losses in algo.process(data, env_steps):
+                        stats.add_losses(losses)
+
+                    last = env_steps >= total
+                    if env_steps >= next_log or last:
+                        row = {**stats.row(env_steps, algo.updates), **algo.log_extras()}
+                        _log_row(run, logger, row)
+                        bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
+                        next_log = _next_multiple(env_steps, recipe.logger.log_interval)
+                    if env_steps >= next_ckpt or last:
+                        _checkpoint(run, algo, env_steps)
+                        next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
+                    if next_eval is not None and env_steps >= next_eval and not last:
+                        _evaluate(recipe, run, algo, logger, env_steps)
+                        next_eval = _next_multiple(env_steps, recipe.eval.interval)
+                    if last:
+                        break
+            finally:
+                bar.close()
+                collector.shutdown()
+    else:
+        log.info("%s already trained %d of %d env steps; nothing to do", run.path, env_steps, total)
+        env.close()
+    _evaluate(recipe, run, algo, logger, env_steps)
+    if logger is not None and hasattr(getattr(logger, "experiment", None), "finish"):
+        logger.experiment.finish()
+    return run
+
+
+def _next_multiple(x: int, every: int) -> int:
+    return (x // every + 1) * every if every > 0 else 2**62
+
+
+def _log_row(run: RunDir, logger, row: dict) -> None:
+    run.log_metrics(row)
+    if logger is not None:
+        for k, v in row.items():
+            if k != "env_steps":
+                logger.log_scalar(k, v, step=row["env_steps"])
+    log.info(
+        "env_steps %d  updates %d  return %.1f  %.0f steps/s",
+        row["env_steps"],
+        row["updates"],
+        row.get("train_return/mean", float("nan")),
+        row["env_steps_per_s"],
+    )
+
+
+def _checkpoint(run: RunDir, algo: Algorithm, env_steps: int) -> None:
+    """Write the checkpoint, unless the weights went non-finite (the last good one stays)."""
+    learner = algo.state_dict()
+    bad = _non_finite(learner)
+    if bad:
+        raise FloatingPointError(
+            f"training diverged at {env_steps} env steps: non-finite values in {bad}; the last "
+            f"good checkpoint ({run.checkpoint_path}) was kept. Lower the learning rate or "
+            f"enable gradient clipping, then `gcnt train --resume {run.path}`"
+        )
+    has_buffers = algo.buffers_state(run.buffers_dir)
+    run.save_checkpoint(
+        {
+            "algo": algo.name,
+            "learner": learner,
+            "policy": algo.policy_state(),  # for `gcnt eval` without rebuilding the learner
+            "env_steps": env_steps,
+            "has_buffers": has_buffers,
+        }
+    )
+
+
+def _non_finite(state, prefix: str = "") -> str | None:
+    """The first floating-point tensor in a (nested) state dict that holds NaN or inf."""
+    if isinstance(state, torch.Tensor):
+        if state.is_floating_point() and not bool(torch.isfinite(state).all()):
+            return prefix or "a tensor"
+        return None
+    if isinstance(state, dict):
+        items = state.items()
+    elif isinstance(state, (list, tuple)):
+        items = enumerate(state)
+    else:
+        return None
+    for k, v in items:
+        found = _non_finite(v, f"{prefix}.{k}" if prefix else str(k))
+        if found:
+            return found
+    return None
+
+
+def _evaluate(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int) -> None:
+    specs = recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
+    if recipe.eval.episodes <= 0 or not specs:
+        return
+    policy = algo.policy_state()
+    results = evaluate(
+        recipe,
+        policy,
+        specs,
+        episodes=recipe.eval.episodes,
+        deterministic=recipe.eval.deterministic,
+    )
+    path = write_eval(
+        run.path / "eval" / f"step{env_steps}.json",
+        results,
+        env_steps,
+        meta={"robots_spec": list(specs), "episodes": recipe.eval.episodes,
+              "deterministic": recipe.eval.deterministic},
+    )
+    if logger is not None:
+        for name, res in results.items():
+            logger.log_scalar(f"eval_return/{name}", res["mean"], step=env_steps)
+    log.info("eval at %d steps written to %s", env_steps, Path(path))
+    if recipe.eval.video:
+        out = render_policy(recipe, policy, run.path / "videos" / f"step{env_steps}.mp4")
+        log.info("video written to %s", out)

@@ -1,0 +1,72 @@
+"""The ``td3:`` recipe section (the paper's TD3 settings on SMPENV are the defaults).
+
+Imported by the recipe loader without torch, so keep this module free of heavy imports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+
+@dataclass
+class TD3Config:
+    # --- collection
+    #: first steps with uniform random actions in [-1, 1] (counted over all robots; rounded up
+    #: to whole collector batches)
+    init_random_frames: int = 10_000
+    #: "paper": lockstep until every robot has finished an episode, then per-robot updates from
+    #: its own buffer, as many as its transitions. "mixed": every ``steps_per_batch`` lockstep
+    #: steps, updates on padded batches that mix all robots (batch_size samples of each robot)
+    schedule: Literal["paper", "mixed"] = "paper"
+    #: lockstep steps per collector batch (in both schedules; "paper" checks for finished
+    #: robots at these boundaries)
+    steps_per_batch: int = 50
+    #: std of the Gaussian exploration noise added to the actor's actions
+    exploration_noise: float = 0.126
+    # --- replay
+    #: transitions kept per robot (the paper: 500k) ...
+    buffer_size_per_robot: int = 500_000
+    #: ... and over all robots (the paper: 4M): each robot gets min(per robot, total / robots)
+    buffer_total_size: int = 4_000_000
+    #: mini-batch size (per robot, also in the mixed schedule)
+    batch_size: int = 100
+    #: also checkpoint the replay buffers (large; makes resume exact)
+    checkpoint_buffers: bool = False
+    # --- optimisation
+    #: Adam learning rate of actor and critic
+    lr: float = 1e-4
+    gamma: float = 0.99
+    #: soft target update rate (target = (1 - tau) target + tau online)
+    tau: float = 0.046
+    #: critic updates per actor (and target) update
+    policy_delay: int = 2
+    #: target-policy smoothing noise std and clip
+    policy_noise: float = 0.2
+    noise_clip: float = 0.5
+    #: gradient-norm clip of actor and critic (<= 0: off)
+    max_grad_norm: float = 0.1
+    #: critic updates per stored environment step (the paper: 1)
+    updates_per_step: float = 1.0
+
+    def check(self) -> None:
+        """Values that cannot train: a ValueError naming the key."""
+        for key in ("steps_per_batch", "batch_size", "buffer_size_per_robot", "buffer_total_size",
+                    "policy_delay"):
+            if getattr(self, key) < 1:
+                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
+        for key in ("init_random_frames",):
+            if getattr(self, key) < 0:
+                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
+        for key in ("lr", "tau", "updates_per_step"):
+            v = getattr(self, key)
+            if not v > 0 or v != v or v == float("inf"):
+                raise ValueError(f"{key} must be a positive finite number, got {v}")
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        if not self.tau <= 1.0:
+            raise ValueError(f"tau must be in (0, 1], got {self.tau}")
+        for key in ("exploration_noise", "policy_noise", "noise_clip"):
+            v = getattr(self, key)
+            if not v >= 0 or v == float("inf"):
+                raise ValueError(f"{key} must be >= 0 and finite, got {v}")
