@@ -49,10 +49,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "items",
-        nargs="+",
+        nargs=argparse.REMAINDER,
         metavar="RECIPE|SWEEP_DIR|key=value",
-        help="recipe files, or one sweep directory to continue; then overrides key=value",
+        help="recipe files, or one sweep directory to continue; overrides key=value (options "
+        "may come before, between or after them)",
     )
+    _options(p)
+
+
+def _options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--methods", type=_csv, help="comma-separated methods (default: the recipe's)")
     p.add_argument("--seeds", type=_seeds, help="seeds: 0,1,2 or 0-2 (default: the recipe's)")
     p.add_argument("--dir", type=Path, help="sweep directory (default: sweeps/<task>)")
@@ -100,7 +105,22 @@ def _split_items(items: list[str]) -> tuple[list[str], list[str]]:
     return recipes, overrides
 
 
+def _parse_items(args: argparse.Namespace) -> None:
+    """Options mixed in with the recipes and overrides (argparse stops at the first positional
+    otherwise): parse what came after it, keeping what was parsed before."""
+    inner = argparse.ArgumentParser(prog="gcnt sweep")
+    _options(inner)
+    inner.add_argument("items", nargs="*")
+    rest = list(args.items)
+    del args.items
+    inner.parse_intermixed_args(rest, namespace=args)
+
+
 def run(args: argparse.Namespace) -> int:
+    _parse_items(args)
+    if not args.items:
+        log.error("give recipe files or a sweep directory (see gcnt sweep --help)")
+        return 2
     from gcnt.analysis.sweep import (
         MANIFEST,
         ClusterOptions,

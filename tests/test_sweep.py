@@ -1,0 +1,147 @@
+"""``gcnt sweep``: grid expansion, pinning, the manifest; a tiny real sweep run locally, resumed,
+evaluated and read back from W&B's offline files; the submitit path with its debug executor."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gcnt.analysis import sweep as S
+from gcnt.analysis.runs import Run, find_runs
+from gcnt.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICKSTART = ROOT / "recipes" / "quickstart.yaml"
+# stable recipe keys only: a tiny, all-random-action run (no updates) of one small robot
+TINY = [
+    "collector.total_frames=300",
+    "checkpoint_interval=100",
+    "env.robots=[hopper_3]",
+    "env.test_robots=[hopper_4]",
+    "env.max_episode_steps=50",
+    "eval.episodes=1",
+    "logger.log_interval=100",
+    "logger.progress=false",
+    "network.kwargs={d_model: 8, layers: 1, ff: 16, heads: 2}",
+]
+
+
+def test_expand_gives_every_run_an_explicit_dir_and_the_sweep_group(tmp_path: Path) -> None:
+    specs = S.expand(
+        [QUICKSTART],
+        tmp_path / "sw",
+        methods=["gcnt", "swat"],
+        seeds=[0, 1],
+        overrides=[*TINY, "swat:network.kwargs={d_model: 9, layers: 1, ff: 16, heads: 3}"],
+        evals=["test"],
+    )
+    assert [(s.method, s.seed) for s in specs] == [
+        ("gcnt", 0),
+        ("gcnt", 1),
+        ("swat", 0),
+        ("swat", 1),
+    ]
+    s = specs[-1]
+    assert s.run_dir == str((tmp_path / "sw" / s.id).resolve())
+    assert s.id.endswith("/td3-swat/seed1")
+    assert f"run_dir={s.run_dir}" in s.overrides and "logger.group=sw" in s.overrides
+    # a method-specific override reaches that method only, after the shared ones
+    assert "network.kwargs={d_model: 9, layers: 1, ff: 16, heads: 3}" in s.overrides
+    assert not any("d_model: 9" in o for o in specs[0].overrides)
+    assert S.commands(s)[0][1][-len(s.overrides) :] == s.overrides
+    with pytest.raises(S.SweepError, match="nope"):
+        S.expand([QUICKSTART], tmp_path, overrides=["nope:seed=1"], methods=["gcnt"])
+    with pytest.raises(S.SweepError, match="missing.yaml"):
+        S.expand([tmp_path / "missing.yaml"], tmp_path)
+    with pytest.raises(S.SweepError, match="unknown recipe key"):
+        S.expand([QUICKSTART], tmp_path, overrides=["colector.total_frames=1"])
+
+
+def test_slots_are_pinned_to_disjoint_cores() -> None:
+    assert S.slot_cores(2, 1, [0, 1]) == [[0], [1]]
+    assert S.slot_cores(2, 2, [0, 1, 2, 3]) == [[0, 1], [2, 3]]
+    assert S.slot_cores(3, 1, [4, 5]) == [[4], [5], [4]]  # more slots than cores: shared
+    assert S.default_jobs(1, [0, 1]) == 2 and S.default_jobs(4, [0, 1]) == 1
+    env = S.pinned_env(3, {})
+    assert all(env[v] == "3" for v in S.THREAD_VARS)
+
+
+def test_bad_sweep_input_exits_2(tmp_path: Path) -> None:
+    assert main(["sweep", str(tmp_path / "nope.yaml")]) == 2
+    assert main(["sweep", str(tmp_path)]) == 2  # a directory without a manifest
+    assert main(["sweep", str(QUICKSTART), "colector.total_frames=1", "--dir", str(tmp_path)]) == 2
+
+
+def _leet(run_dir: Path, *flags: str) -> str:
+    """``wandb leet inspect`` of a run's offline W&B files (no network)."""
+    wandb = shutil.which("wandb") or str(Path(sys.executable).parent / "wandb")
+    (offline,) = (run_dir / "wandb").glob("offline-run-*")
+    return subprocess.run(
+        [wandb, "leet", "inspect", *flags, "--json", str(offline)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+
+
+@pytest.mark.slow
+def test_tiny_local_sweep_runs_resumes_evaluates_and_logs_to_wandb(tmp_path: Path) -> None:
+    sw = tmp_path / "sw"
+    argv = ["sweep", str(QUICKSTART), "--seeds", "0,1", "--jobs", "2", "--dir", str(sw), *TINY]
+    assert main([*argv, "--eval", "test", "--episodes", "2"]) == 0
+    manifest = json.loads((sw / S.MANIFEST).read_text())
+    assert [r["state"] for r in manifest["runs"]] == ["done", "done"]
+    assert all(r["eval_state"] == {"test": "done"} for r in manifest["runs"])
+    runs = find_runs([sw])
+    assert [r.seed for r in runs] == [0, 1] and all(r.finished() for r in runs)
+    assert all(r.path.parent.parent.parent == sw for r in runs)
+    # the test evaluation ran through `gcnt eval` and is readable
+    assert any("hopper_4" in e.robots for e in runs[0].evals())
+
+    # W&B (offline): one group for the sweep; method, task, seed and algorithm in the config;
+    # the training metrics arrived
+    records = [json.loads(x) for x in _leet(runs[1].path).splitlines() if x.startswith("{")]
+    run_rec = next(r["run"] for r in records if r["type"] == "run")
+    assert run_rec["run_group"] == "sw"
+    config = json.loads(_leet(runs[1].path, "--summary"))["config"]
+    assert config["seed"] == 1 and config["network"]["name"] == "gcnt"
+    assert (config.get("task") or config.get("benchmark")) and config.get("algo", "td3") == "td3"
+    history = [r["history"]["item"] for r in records if r["type"] == "history"]
+    assert any("train_return/mean" in h for h in history)
+
+    # again: nothing to do (the logs do not grow)
+    logs = {p: p.stat().st_size for p in (sw / "logs").iterdir()}
+    assert main(argv) == 0
+    assert {p: p.stat().st_size for p in (sw / "logs").iterdir()} == logs
+
+    # a longer budget makes run 0 unfinished: the sweep resumes it from its checkpoint
+    recipe_file = runs[0].path / "recipe.yaml"
+    recipe = yaml.safe_load(recipe_file.read_text())
+    recipe["collector"]["total_frames"] = 400
+    recipe_file.write_text(yaml.safe_dump(recipe))
+    assert not Run(runs[0].path).finished()
+    assert main(["sweep", str(sw)]) == 0
+    assert Run(runs[0].path).last_env_steps() >= 400
+    log = Path(json.loads((sw / S.MANIFEST).read_text())["runs"][0]["log"]).read_text()
+    assert "train --resume" in log
+    assert main(["sweep", str(sw), "--status"]) == 0
+
+
+@pytest.mark.slow
+def test_submitit_debug_executor(tmp_path: Path) -> None:
+    pytest.importorskip("submitit")
+    sw = tmp_path / "sl"
+    argv = ["sweep", str(QUICKSTART), "--executor", "debug", "--dir", str(sw), *TINY]
+    assert main([*argv, "logger.backend=none"]) == 0
+    manifest = json.loads((sw / S.MANIFEST).read_text())
+    (run,) = manifest["runs"]
+    assert run["state"] == "done" and run["job_id"]
+    assert Run(run["run_dir"]).finished()
+    assert (sw / "submitit").is_dir()
