@@ -248,7 +248,7 @@ SPLITS = {
 
 
 def test_benchmark_splits():
-    bench = load_benchmarks()
+    bench = load_benchmarks(catalogue="smpenv")
     assert {k: (len(v["train"]), len(v["test"])) for k, v in bench.items()} == SPLITS
     assert set(bench["Walker++"]["test"]) == {"walker_3_main", "walker_6_main"}
     assert set(bench["Cheetah++"]["test"]) == {
@@ -316,19 +316,19 @@ def test_robots_command(tmp_path, monkeypatch, capsys):
     assert cli_main(["robots"]) == 0
     out = capsys.readouterr().out
     assert "CWHH++:test" in out and "humanoid_2d_8_right_knee" in out
-    assert "hopper_5  " in out and "lower_leg" in out
+    assert "hopper_5  " in out and "lower_leg" in out and "published train" in out
 
-    assert cli_main(["robots", "--check"]) == 0
+    assert cli_main(["robots", "--check", "--catalogue", "smpenv"]) == 0
     copy = tmp_path / "morph"
     shutil.copytree(morphologies_dir(), copy)
     (copy / "smpenv" / "hopper_4.xml").write_text(build_mjcf("hopper_4").replace("200", "201"))
     (copy / "smpenv" / "walker_2_main.xml").unlink()
     monkeypatch.setenv("GCNT_MORPHOLOGIES", str(copy))
     capsys.readouterr()
-    assert cli_main(["robots", "--check"]) == 1
+    assert cli_main(["robots", "--check", "--catalogue", "smpenv"]) == 1
     out = capsys.readouterr().out
     assert "hopper_4.xml" in out and "walker_2_main.xml: missing" in out
-    assert cli_main(["robots", "--rebuild"]) == 0
-    assert cli_main(["robots", "--check"]) == 0
+    assert cli_main(["robots", "--rebuild", "--catalogue", "smpenv"]) == 0
+    assert cli_main(["robots", "--check", "--catalogue", "smpenv"]) == 0
     assert cli_main(["robots", "walker_9"]) == 2
     assert "walker_" in capsys.readouterr().err

@@ -1,9 +1,12 @@
-"""``gcnt robots``: list benchmarks and robots; rebuild or check the SMPENV robot files.
+"""``gcnt robots``: list benchmarks and robots; rebuild, check or generate robot files.
 
-gcnt robots                      benchmarks with their splits, and a table of all robots
-gcnt robots CWHH++:test hopper_4 only these robots (names, .xml paths, Benchmark:split)
-gcnt robots --rebuild [--out D]  regenerate morphologies/smpenv/*.xml (or into D)
-gcnt robots --check              exit 1 unless the checked-in files equal a regeneration
+gcnt robots                        benchmarks with their splits, the SMPENV robots, UNIMAL statistics
+gcnt robots CWHH++:test hopper_4   only these robots (names, .xml paths or folders, Benchmark:split)
+gcnt robots ~/unimals_100/train/xml   a folder of (MetaMorph) robot files
+gcnt robots --rebuild [--out D]    regenerate every catalogue's files (into D/<catalogue>/...)
+gcnt robots --check                exit 1 unless the checked-in files equal a regeneration
+gcnt robots --generate 20 --seed 500 --out D   20 new UNIMAL robots (seeds 500-519) into D
+Add ``--catalogue smpenv`` (or unimal) to rebuild or check one catalogue only.
 """
 
 from __future__ import annotations
@@ -13,8 +16,15 @@ import logging
 import sys
 from pathlib import Path
 
-from gcnt.morphology.benchmarks import load_benchmarks, morphologies_dir, resolve_robots
-from gcnt.morphology.smpenv import SMPENV_ROBOTS, build_mjcf, write_all
+from gcnt.morphology.benchmarks import (
+    catalogue_names,
+    get_catalogue,
+    load_benchmarks,
+    morphologies_dir,
+    resolve_robots,
+)
+from gcnt.morphology.robot import Robot
+from gcnt.morphology.smpenv import SMPENV_ROBOTS
 
 log = logging.getLogger(__name__)
 
@@ -24,52 +34,84 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "specs",
         nargs="*",
         metavar="ROBOT",
-        help="robots to list: names, .xml paths or Benchmark:split (default: every SMPENV robot)",
+        help="robots to list: names, .xml paths or folders, Benchmark:split "
+        "(default: every SMPENV robot and the UNIMAL set's statistics)",
     )
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
-        "--rebuild", action="store_true", help="regenerate the SMPENV robot files from the builders"
+        "--rebuild", action="store_true", help="regenerate the catalogues' robot and split files"
     )
     mode.add_argument(
         "--check",
         action="store_true",
-        help="verify the checked-in SMPENV robot files are identical to a regeneration",
+        help="verify the checked-in robot and split files are identical to a regeneration",
+    )
+    mode.add_argument(
+        "--generate",
+        type=int,
+        metavar="N",
+        default=None,
+        help="write N new UNIMAL robots (seeds --seed ... --seed+N-1) into --out",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="first seed for --generate")
+    parser.add_argument(
+        "--catalogue",
+        default=None,
+        help="only this catalogue for --rebuild/--check (default: all)",
     )
     parser.add_argument(
         "--out",
         type=Path,
         default=None,
-        help="folder for --rebuild (default: <morphologies>/smpenv)",
+        help="--rebuild: the morphologies folder to write (default: the checked-in one); "
+        "--generate: the folder for the new files (required)",
     )
 
 
-def _smpenv_dir() -> Path:
-    return morphologies_dir() / "smpenv"
+def _selected(name: str | None) -> list[str]:
+    return [get_catalogue(name).name] if name else catalogue_names()
 
 
-def _rebuild(out: Path | None) -> int:
-    out = out if out is not None else _smpenv_dir()
-    paths = write_all(out)
-    print(f"wrote {len(paths)} robot files to {out}")
+def _rebuild(out: Path | None, catalogue: str | None) -> int:
+    root = out if out is not None else morphologies_dir()
+    for name in _selected(catalogue):
+        cat = get_catalogue(name)
+        if cat.rebuild is None:
+            continue
+        paths = cat.rebuild(root)
+        print(f"{name}: wrote {len(paths)} files under {root}")
     return 0
 
 
-def _check() -> int:
-    folder = _smpenv_dir()
-    stale: list[str] = []
-    for name in SMPENV_ROBOTS:
-        path = folder / f"{name}.xml"
-        if not path.is_file():
-            stale.append(f"{path}: missing")
-        elif path.read_text() != build_mjcf(name):
-            stale.append(f"{path}: differs from the builder's output")
-    extra = sorted(p.name for p in folder.glob("*.xml") if p.stem not in SMPENV_ROBOTS)
-    stale.extend(f"{folder / n}: not an SMPENV robot" for n in extra)
-    if stale:
-        print("\n".join(stale))
-        print(f"{len(stale)} problem(s); run `gcnt robots --rebuild` to regenerate")
+def _check(catalogue: str | None) -> int:
+    root = morphologies_dir()
+    problems: list[str] = []
+    for name in _selected(catalogue):
+        cat = get_catalogue(name)
+        if cat.check is None:
+            continue
+        found = cat.check(root)
+        problems += found
+        if not found:
+            print(f"{name}: all files in {root} match a regeneration")
+    if problems:
+        print("\n".join(problems))
+        print(f"{len(problems)} problem(s); run `gcnt robots --rebuild` to regenerate")
         return 1
-    print(f"all {len(SMPENV_ROBOTS)} robot files in {folder} match the builders")
+    return 0
+
+
+def _generate(n: int, seed: int, out: Path | None) -> int:
+    from gcnt.morphology.unimal import build_mjcf, generate
+    from gcnt.morphology.unimal.catalogue import robot_name
+
+    if out is None:
+        print("gcnt robots: error: --generate needs --out DIR", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    for s in range(seed, seed + n):
+        (out / f"{robot_name(s)}.xml").write_text(build_mjcf(generate(s)))
+    print(f"wrote {n} UNIMAL robots (seeds {seed}-{seed + n - 1}) to {out}")
     return 0
 
 
@@ -81,32 +123,83 @@ def _table(rows: list[tuple[str, ...]], header: tuple[str, ...]) -> str:
     return "\n".join(line.rstrip() for line in lines)
 
 
-def _list(specs: list[str]) -> int:
-    if not specs:
-        print("Benchmarks (morphologies/smpenv.yaml):")
-        for bench, splits in load_benchmarks().items():
-            for split in ("train", "test"):
-                names = splits[split]
-                print(f"  {bench + ':' + split:<18} {len(names):2d}  {', '.join(names) or '-'}")
-        print()
-    robots = resolve_robots(specs or list(SMPENV_ROBOTS))
+def _benchmark_of(robots: list[Robot]) -> dict[str, str]:
+    where: dict[str, str] = {}
+    for bench, splits in load_benchmarks().items():
+        for split, names in splits.items():
+            for n in names:
+                where.setdefault(n, f"{bench}:{split}")
+    return where
+
+
+def _robot_rows(robots: list[Robot]) -> str:
+    where = _benchmark_of(robots)
     rows = [
-        (r.name, r.family, str(r.num_limbs), str(r.num_motors), " ".join(r.body_names))
+        (
+            r.name,
+            where.get(r.name, "-"),
+            r.catalogue,
+            str(r.num_limbs),
+            str(r.num_motors),
+            " ".join(r.body_names),
+        )
         for r in robots
     ]
-    print(_table(rows, ("robot", "family", "limbs", "motors", "bodies (pre-order)")))
+    header = ("robot", "benchmark", "catalogue", "limbs", "motors", "bodies (pre-order)")
+    return _table(rows, header)
+
+
+def _stats_block(sets: dict[str, list[Robot]]) -> str:
+    from gcnt.morphology.unimal.stats import PUBLISHED, set_stats
+
+    stats = {name: set_stats(robots) for name, robots in sets.items() if robots}
+
+    def fmt(v: tuple[float, float | None, float], digits: int) -> str:
+        mean = "?" if v[1] is None else f"{v[1]:.1f}"
+        return f"{v[0]:.{digits}f} / {mean} / {v[2]:.{digits}f}"
+
+    rows = []
+    for key in PUBLISHED:
+        digits = 1 if key == "mass" else 0
+        cells = [fmt(s[key], digits) for s in stats.values()]
+        rows.append((key + (" (kg)" if key == "mass" else ""), *cells, fmt(PUBLISHED[key], digits)))
+    header = ("min / mean / max", *(f"{n} ({len(sets[n])})" for n in stats), "published train")
+    return _table(rows, header)
+
+
+def _list(specs: list[str]) -> int:
+    if specs:
+        robots = resolve_robots(specs)
+        print(_robot_rows(robots))
+        unimals = [r for r in robots if r.family == "unimal"]
+        if unimals:
+            print()
+            print(_stats_block({"these UNIMAL robots": unimals}))
+        return 0
+    print("Benchmarks:")
+    for bench, splits in load_benchmarks().items():
+        for split, names in splits.items():
+            shown = ", ".join(names) if len(names) <= 12 else f"{names[0]} ... {names[-1]}"
+            print(f"  {bench + ':' + split:<28} {len(names):3d}  {shown or '-'}")
+    print()
+    print(_robot_rows(resolve_robots(list(SMPENV_ROBOTS))))
+    print()
+    print("UNIMAL robots (generated; the published set was evolved, see the README):")
+    print(_stats_block({s: resolve_robots([f"Unimal:{s}"]) for s in ("train", "test")}))
     return 0
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.out is not None and not args.rebuild:
-        log.error("--out only applies to --rebuild")
+    if args.out is not None and not (args.rebuild or args.generate is not None):
+        log.error("--out only applies to --rebuild and --generate")
         return 2
     try:
         if args.rebuild:
-            return _rebuild(args.out)
+            return _rebuild(args.out, args.catalogue)
         if args.check:
-            return _check()
+            return _check(args.catalogue)
+        if args.generate is not None:
+            return _generate(args.generate, args.seed, args.out)
         return _list(list(args.specs))
     except (ValueError, FileNotFoundError) as e:  # unknown names, bad robot or split files
         print(f"gcnt robots: error: {e}", file=sys.stderr)

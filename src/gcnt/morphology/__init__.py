@@ -4,9 +4,13 @@ from typing import Any
 
 from gcnt.morphology.benchmarks import (
     BenchmarkFileError,
+    Catalogue,
+    DuplicateRobotError,
     UnknownRobotError,
+    get_catalogue,
     load_benchmarks,
     morphologies_dir,
+    register_catalogue,
     resolve_robots,
     smpenv_robot,
 )
@@ -24,14 +28,18 @@ __all__ = [
     "WL_BUCKETS",
     "WL_ROUNDS",
     "BenchmarkFileError",
+    "Catalogue",
+    "DuplicateRobotError",
     "Robot",
     "RobotFileError",
     "RobotGraph",
     "UnknownRobotError",
     "build_mjcf",
+    "get_catalogue",
     "load_benchmarks",
     "load_robot",
     "morphologies_dir",
+    "register_catalogue",
     "resolve_robots",
     "robot_from_xml",
     "smpenv_robot",
@@ -40,7 +48,7 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    # BENCHMARKS is read from morphologies/smpenv.yaml on first access, not at import.
+    # BENCHMARKS is read from the catalogues' split files on first access, not at import.
     if name == "BENCHMARKS":
         from gcnt.morphology.benchmarks import load_benchmarks
 

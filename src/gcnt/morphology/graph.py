@@ -185,7 +185,6 @@ class RobotGraph:
     """All static graph features of one robot, unpadded numpy arrays."""
 
     adj: np.ndarray  # bool [K, K]
-    norm_adj: np.ndarray  # float32 [K, K]
     dist: np.ndarray  # int64 [K, K]
     wl: np.ndarray  # float32 [W]
     traversal: np.ndarray  # int64 [K, 3]
@@ -205,7 +204,6 @@ class RobotGraph:
         adj = adjacency(parents)
         return cls(
             adj=adj,
-            norm_adj=gcn_normalized_adjacency(adj),
             dist=hop_distances(adj),
             wl=wl_counts(np.asarray(types), adj, wl_rounds, wl_buckets),
             traversal=traversal_indices(parents),

@@ -2,7 +2,7 @@
 
 Four families: walker, cheetah (gym's half-cheetah), humanoid_2d and hopper. Each family has one
 full robot, described below as a tree of :class:`_Body` records whose numbers are those of the
-spec's fact tables (``smpenv-models.md``); every variant is that tree with whole limb subtrees
+original SMP robot files; every variant is that tree with whole limb subtrees
 removed, nothing else changed. The hoppers are three separate trees (3, 4 and 5 bodies).
 
 Geometry is written as MuJoCo compiles it: capsules that the originals describe by their end points
@@ -16,12 +16,13 @@ named, there are no assets, and floats are printed with a fixed precision.
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from dm_control import mjcf
+
+from gcnt.suggest import did_you_mean
 
 #: Digits used when printing floats into the XML (every number in the tables has at most 7).
 _PRECISION = 10
@@ -523,10 +524,9 @@ def _variant(name: str) -> tuple[str, frozenset[str]]:
     try:
         return _VARIANTS[name]
     except KeyError:
-        close = difflib.get_close_matches(name, SMPENV_ROBOTS, n=5, cutoff=0.5)
-        hint = f"; did you mean {', '.join(close)}?" if close else ""
         raise ValueError(
-            f"unknown SMPENV robot {name!r}{hint} (known: {', '.join(SMPENV_ROBOTS)})"
+            f"unknown SMPENV robot {name!r}{did_you_mean(name, SMPENV_ROBOTS)} "
+            f"(known: {', '.join(SMPENV_ROBOTS)})"
         ) from None
 
 

@@ -87,9 +87,7 @@ def split_yaml(train: list[str], test: list[str]) -> str:
 def expected_files() -> dict[str, str]:
     """Relative path -> text of every checked-in UNIMAL file."""
     train, test = benchmark_seeds()
-    files = {
-        f"{FOLDER}/{robot_name(s)}.xml": build_mjcf(generate(s)) for s in (*train, *test)
-    }
+    files = {f"{FOLDER}/{robot_name(s)}.xml": build_mjcf(generate(s)) for s in (*train, *test)}
     files[SPLIT_FILE] = split_yaml([robot_name(s) for s in train], [robot_name(s) for s in test])
     return files
 

@@ -66,7 +66,9 @@ def _map_hinges(u: Unimal, groups: list[tuple[int, ...]], fn: Callable[[Limb], t
 
 def _joint_angle(u: Unimal, rng: Rng) -> Unimal:
     return _map_hinges(
-        u, _scope(u, rng), lambda lb: tuple(replace(h, range=rng.choice(JOINT_RANGES)) for h in lb.hinges)
+        u,
+        _scope(u, rng),
+        lambda lb: tuple(replace(h, range=rng.choice(JOINT_RANGES)) for h in lb.hinges),
     )
 
 
@@ -82,13 +84,17 @@ def _dof(u: Unimal, rng: Rng) -> Unimal:
 
 def _armature(u: Unimal, rng: Rng) -> Unimal:
     return _map_hinges(
-        u, _scope(u, rng), lambda lb: tuple(replace(h, armature=rng.choice(ARMATURES)) for h in lb.hinges)
+        u,
+        _scope(u, rng),
+        lambda lb: tuple(replace(h, armature=rng.choice(ARMATURES)) for h in lb.hinges),
     )
 
 
 def _damping(u: Unimal, rng: Rng) -> Unimal:
     return _map_hinges(
-        u, _scope(u, rng), lambda lb: tuple(replace(h, damping=rng.choice(DAMPINGS)) for h in lb.hinges)
+        u,
+        _scope(u, rng),
+        lambda lb: tuple(replace(h, damping=rng.choice(DAMPINGS)) for h in lb.hinges),
     )
 
 
@@ -150,7 +156,10 @@ def mutate(u: Unimal, op: str, rng: Rng) -> Unimal:
 
         raise ValueError(f"unknown mutation {op!r}{did_you_mean(op, OPERATORS)}")
     for _ in range(TRIES):
-        new = OPERATORS[op](u, rng)
+        try:
+            new = OPERATORS[op](u, rng)
+        except MutationError:
+            continue
         if new == u:
             continue
         try:
