@@ -320,6 +320,9 @@ class BatchedMujocoEnv(EnvBase):
         robot_ids: each sub-env's index into a run-wide robot table, emitted as ``morph_id``
             (default: the index of its robot in :attr:`table`).
         name: the env's name in error messages and warnings.
+        compile_model: builds the MjModel of a robot (default ``Robot.compile``), e.g. the robot
+            inside a benchmark's world (floor, terrain, obstacles). It must keep the robot's body,
+            joint and actuator ids (add world geoms, not bodies before the robot's).
 
     Attributes:
         robots, max_limbs (K), action_slots (A), table (``robot_table`` of the distinct robots,
@@ -349,6 +352,7 @@ class BatchedMujocoEnv(EnvBase):
         num_threads: int | None = None,
         robot_ids: Sequence[int] | None = None,
         name: str | None = None,
+        compile_model: Callable[[Robot], mujoco.MjModel] | None = None,
     ):
         self.name = name or type(self).__name__
         robots = tuple(robots)
@@ -380,7 +384,11 @@ class BatchedMujocoEnv(EnvBase):
         )
         self.local_ids = torch.tensor([distinct[_robot_key(r)] for r in robots], dtype=torch.int64)
         self.morph_ids = self._check_robot_ids(robot_ids)
-        shared = [r.compile() for r in self.distinct_robots]
+        #: builds a sub-env's MjModel from its robot (default ``Robot.compile``; a benchmark may
+        #: add its world to the robot's model here)
+        self.compile_model = compile_model or Robot.compile
+        build = self.compile_model
+        shared = [build(r) for r in self.distinct_robots]
         dts = [float(m.opt.timestep) * self.frame_skip for m in shared]
         # One TaskRules per sub-env; copies of a robot share its MjModel unless the rules edit it.
         models: list[mujoco.MjModel] = []
@@ -390,7 +398,7 @@ class BatchedMujocoEnv(EnvBase):
             if lid not in first:
                 model = shared[lid]
             else:
-                model = r.compile() if first[lid].edits_model else shared[lid]
+                model = build(r) if first[lid].edits_model else shared[lid]
             rl = rules(r, model, dts[lid])
             first.setdefault(lid, rl)
             models.append(model)

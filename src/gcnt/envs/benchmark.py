@@ -46,6 +46,9 @@ class Benchmark:
     #: worlds whose observation carries a height map, and its width
     hfield_worlds: tuple[str, ...] = ()
     hfield_dim: int = 0
+    #: the robots a run of this benchmark trains on, as a robot spec ("Benchmark:split"); the
+    #: default robots of ``gcnt bench-env``
+    train_split: str = ""
     #: extra documentation shown by ``gcnt robots``
     description: str = ""
     notes: dict[str, Any] = field(default_factory=dict)
