@@ -13,7 +13,7 @@ from gcnt.envs.smpenv import SMPEnv
 from gcnt.envs.tasks import task_rules
 from gcnt.morphology.benchmarks import smpenv_robot
 
-# robot -> (z_low, z_high) of the healthy test (spec: smpenv.md, "Reward, termination, reset")
+# robot -> (z_low, z_high) of the healthy test of the original SMPENV task code
 Z_BOUNDS = {
     "walker_2_main": (0.8 - 0.26, 2.0 - 0.26),
     "walker_3_main": (0.8 - 0.26, 2.0 - 0.26),
