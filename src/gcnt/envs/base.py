@@ -45,6 +45,10 @@ names the robot and sub-env. The other sub-envs go on; the next (partial) reset 
 MuJoCo's own "Nan, Inf or huge value" messages are not printed (see
 :func:`quiet_mujoco_instability_messages`).
 
+Robot pool: :meth:`BatchedMujocoEnv.use_robot_pool` turns the N sub-envs into slots that any
+robot of a pool can occupy; a sampler picks each slot's robot at every reset and ``morph_id``
+follows (PPO's robot sampling draws a new robot per episode this way).
+
 An env holds threads and views into MuJoCo's memory and does not pickle: give multi-process
 collectors a constructor (``functools.partial(SMPEnv, robots, ...)``), not an instance.
 """
@@ -289,6 +293,21 @@ def _robot_key(r: Robot) -> tuple[str, str]:
     return (r.name, r.xml)
 
 
+def _actuator_slots(r: Robot, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """The limb and action slot of each of ``model``'s actuators (robot ``r``)."""
+    limb_of = np.full(model.nu, -1, np.int64)
+    slot_of = np.zeros(model.nu, np.int64)
+    for limb, acts in enumerate(r.actuator_ids):
+        for act, slot in zip(acts, r.action_slots(limb), strict=True):
+            limb_of[act], slot_of[act] = limb, slot
+    if (limb_of < 0).any():
+        raise ValueError(
+            f"robot {r.name!r}: actuators {np.nonzero(limb_of < 0)[0].tolist()} drive no "
+            f"limb joint"
+        )
+    return limb_of, slot_of
+
+
 def _cost_guess(model: mujoco.MjModel, frame_skip: int) -> float:
     """A first guess of a sub-env's physics time per control step (seconds), to order the work
     queue until measured times replace it."""
@@ -374,6 +393,10 @@ class BatchedMujocoEnv(EnvBase):
         #: builds one sub-env's TaskRules, ``rules_factory(robot, model, dt)`` (e.g. for a loop
         #: that steps the same robots outside the env)
         self.rules_factory = rules
+        self._featurizer_factory = featurizer
+        # robot pool (see use_robot_pool): None while each sub-env keeps its robot
+        self._pool_sample: Callable[[np.ndarray], np.ndarray] | None = None
+        self._pool_models: list[mujoco.MjModel] = []
 
         # Distinct robots and their models.
         distinct: dict[tuple[str, str], int] = {}
@@ -422,16 +445,7 @@ class BatchedMujocoEnv(EnvBase):
         for i, r in enumerate(robots):
             model = models[i]
             data = mujoco.MjData(model)
-            limb_of = np.full(model.nu, -1, np.int64)
-            slot_of = np.zeros(model.nu, np.int64)
-            for limb, acts in enumerate(r.actuator_ids):
-                for act, slot in zip(acts, r.action_slots(limb), strict=True):
-                    limb_of[act], slot_of[act] = limb, slot
-            if (limb_of < 0).any():
-                raise ValueError(
-                    f"robot {r.name!r}: actuators {np.nonzero(limb_of < 0)[0].tolist()} drive no "
-                    f"limb joint"
-                )
+            limb_of, slot_of = _actuator_slots(r, model)
             ctrl_rows.append(np.full(model.nu, i))
             ctrl_limbs.append(limb_of)
             ctrl_slots.append(slot_of)
@@ -760,6 +774,8 @@ class BatchedMujocoEnv(EnvBase):
         else:
             which = mask.reshape(n).cpu().numpy().astype(bool)
         rows = np.nonzero(which)[0]
+        if self._pool_sample is not None and len(rows):
+            self._reassign(rows, self._pool_sample(rows))
         for i in rows:
             s = self._sims[i]
             mujoco.mj_resetData(s.model, s.data)  # qpos = qpos0: every joint at its ref
@@ -842,6 +858,106 @@ class BatchedMujocoEnv(EnvBase):
                 stacklevel=4,
             )
         self._warned |= blown
+
+    # ------------------------------------------------------------------ robot pool (slots)
+    def use_robot_pool(
+        self, pool: Sequence[Robot], sample: Callable[[np.ndarray], np.ndarray]
+    ) -> None:
+        """Make the N sub-envs slots that any robot of ``pool`` can occupy, one robot per episode.
+
+        At every reset (full or partial) ``sample(rows)`` is called with the sub-envs being
+        reset (int array, ascending) and returns one pool index per row: the robot that sub-env
+        runs next. From now on :attr:`table` covers the whole pool (in pool order), ``morph_id``
+        is the pool index and :attr:`robots` the current robot of each sub-env. Every current
+        robot must be in the pool and every pool robot must fit in K (build the env with
+        ``max_limbs`` = the largest pool robot). Changing a sub-env's robot builds a new MjData
+        (a private model if the task rules edit it) and a new featuriser for the N sub-envs;
+        sub-envs that are not reset keep their state. Used by PPO's robot sampling.
+        """
+        pool = tuple(pool)
+        if not pool:
+            raise ValueError(f"{self.name}: the robot pool is empty")
+        index: dict[tuple[str, str], int] = {}
+        for p, r in enumerate(pool):
+            if index.setdefault(_robot_key(r), p) != p:
+                raise ValueError(f"{self.name}: robot {r.name!r} appears twice in the pool")
+        missing = sorted({r.name for r in self.robots if _robot_key(r) not in index})
+        if missing:
+            raise ValueError(f"{self.name}: sub-env robots {missing} are not in the robot pool")
+        too_big = [r.name for r in pool if r.num_limbs > self.max_limbs]
+        if too_big:
+            raise RobotTooLargeError(
+                f"{self.name}: pool robots {too_big} have more than K={self.max_limbs} limbs "
+                f"(build the env with max_limbs = the largest pool robot)"
+            )
+        known = {_robot_key(s.robot): s.model for s in self._sims if not s.rules.edits_model}
+        self._pool_models = [known.get(_robot_key(r)) or r.compile() for r in pool]
+        context = None
+        f = self._featurizer
+        if f.context_dim > 0:
+            context = [
+                np.asarray(f.limb_context(r, m), np.float32)
+                for r, m in zip(pool, self._pool_models, strict=True)
+            ]
+        self.table = robot_table(pool, self.max_limbs, self.action_slots, context=context)
+        self.distinct_robots = pool
+        self.local_ids = torch.tensor([index[_robot_key(r)] for r in self.robots])
+        self.morph_ids = self.local_ids.clone()
+        self._pool_sample = sample
+        self._relayout()
+
+    def _reassign(self, rows: np.ndarray, ids) -> None:
+        """Give sub-envs ``rows`` the pool robots ``ids`` (then rebuild what depends on them)."""
+        ids = np.asarray(ids, np.int64).reshape(-1)
+        pool = self.distinct_robots
+        if ids.shape != rows.shape or (ids < 0).any() or (ids >= len(pool)).any():
+            raise ValueError(
+                f"{self.name}: the robot sampler must return one pool index in [0, {len(pool)}) "
+                f"per reset sub-env ({len(rows)}), got {ids.tolist()}"
+            )
+        changed = False
+        for i, p in zip(rows.tolist(), ids.tolist(), strict=True):
+            if int(self.local_ids[i]) == p:
+                continue
+            r, model = pool[p], self._pool_models[p]
+            dt = float(model.opt.timestep) * self.frame_skip
+            rules = self.rules_factory(r, model, dt)
+            if rules.edits_model:  # a private model, as at construction
+                model = r.compile()
+                rules = self.rules_factory(r, model, dt)
+            data = mujoco.MjData(model)
+            self._sims[i] = _Sim(i, r, model, data, rules, slice(0, 0), data.ctrl,
+                                 data.warning.number)
+            self.local_ids[i] = self.morph_ids[i] = p
+            self._cost[i] = _cost_guess(model, self.frame_skip)
+            changed = True
+        if changed:
+            self._relayout()
+
+    def _relayout(self) -> None:
+        """Rebuild the featuriser, control layout and static outputs for the current robots."""
+        sims = self._sims
+        self.robots = tuple(s.robot for s in sims)
+        f = self._featurizer = self._featurizer_factory(
+            self.robots, [s.model for s in sims], self.max_limbs
+        )
+        rows, limbs, slots, offset = [], [], [], 0
+        for s in sims:
+            limb_of, slot_of = _actuator_slots(s.robot, s.model)
+            rows.append(np.full(s.model.nu, s.index))
+            limbs.append(limb_of)
+            slots.append(slot_of)
+            s.ctrl_slice = slice(offset, offset + s.model.nu)
+            offset += s.model.nu
+            s.copies = f.bind(s.index, s.data)
+        self._ctrl_index = (np.concatenate(rows), np.concatenate(limbs), np.concatenate(slots))
+        self.dt = np.array([float(s.model.opt.timestep) * self.frame_skip for s in sims])
+        local = self.local_ids
+        self._static = {key: self.table[key][local].to(self.device) for key in self._static}
+        self._morph_id_dev = self.morph_ids.to(self.device)
+        self._no_motor = ~self.table["limbs", "action_mask"][local].numpy()
+        for s in sims:  # fill the new featuriser's buffers (kinematics are idempotent)
+            self._refresh(s)
 
     # ------------------------------------------------------------------ public helpers
     def close(self, *, raise_if_closed: bool = True) -> None:
