@@ -41,8 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--robots",
         nargs="+",
-        default=["CWHH++:train"],
-        help="robot names, .xml paths or Benchmark:split (default: CWHH++:train)",
+        default=None,
+        help="robot names, .xml paths or Benchmark:split (default: the benchmark's training split, "
+        "e.g. CWHH++:train for smpenv, Unimal:train for unimal)",
     )
     p.add_argument("--copies", type=int, default=1, help="sub-envs per robot (default 1)")
     p.add_argument("--steps", type=int, default=300, help="batched steps per round (default 300)")
@@ -104,8 +105,17 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.morphology.benchmarks import resolve_robots
 
     bench = get_benchmark(args.benchmark)
-    robots = resolve_robots(args.robots) * args.copies
+    specs = args.robots
+    if not specs:
+        if not bench.train_split:
+            raise ValueError(
+                f"benchmark {bench.name!r} names no training split (Benchmark.train_split); "
+                "pass --robots"
+            )
+        specs = [bench.train_split]
+    robots = resolve_robots(specs) * args.copies
     env = bench.make_env(robots, seed=args.seed, num_threads=args.threads, world=args.world)
+    world = bench.check_world(args.world)
     n = len(robots)
     gen = torch.Generator().manual_seed(args.seed)
     shape = env.action_spec["limbs", "action"].shape
@@ -116,16 +126,24 @@ def run(args: argparse.Namespace) -> int:
     _, td = _env_round(env, td, actions, 20)  # warm up both
     raw.round(20)
     env_rates, raw_rates = [], []
+    hfield_s = getattr(env, "hfield_seconds", None)
+    env_s = 0.0
+    hfield_start = hfield_s
     for _ in range(args.rounds):
         dt, td = _env_round(env, td, actions, args.steps)
+        env_s += dt
         env_rates.append(n * args.steps / dt)
         raw_rates.append(n * args.steps / raw.round(args.steps))
+    hfield_share = None
+    if hfield_start is not None and env.observation_spec.get("hfield", None) is not None:
+        hfield_share = (env.hfield_seconds - hfield_start) / env_s
     env.close()
     used = env.thread_use
     multi = sum(v for k, v in used.items() if k > 1) / max(1, sum(used.values()))
     env_med, raw_med = statistics.median(env_rates), statistics.median(raw_rates)
     result = {
         "benchmark": bench.name,
+        "world": world,
         "robots": n,
         "distinct_robots": len(env.distinct_robots),
         "max_limbs": env.max_limbs,
@@ -140,18 +158,26 @@ def run(args: argparse.Namespace) -> int:
         "env_steps_per_s_rounds": [round(x, 1) for x in env_rates],
         "raw_steps_per_s_rounds": [round(x, 1) for x in raw_rates],
         "ratio_rounds": [round(a / b, 3) for a, b in zip(env_rates, raw_rates, strict=True)],
+        "hfield_share_of_env_time": None if hfield_share is None else round(hfield_share, 4),
     }
     if args.json:
         print(json.dumps(result))
     else:
+        where = f", world {world}" if world else ""
+        hf = (
+            ""
+            if hfield_share is None
+            else f"  height map share of env step time     : {hfield_share:10.1%}\n"
+        )
         print(
-            f"{env.name} ({bench.name}): {n} sub-envs ({result['distinct_robots']} distinct robots), K={env.max_limbs}, "
+            f"{env.name} ({bench.name}{where}): {n} sub-envs ({result['distinct_robots']} distinct robots), K={env.max_limbs}, "
             f"up to {env.num_threads} threads ({multi:.0%} of steps used more than one), "
             f"frame_skip {env.frame_skip}; median of {args.rounds} "
             f"interleaved rounds of {args.steps} batched steps\n"
             f"  env steps/s (obs, random actions, resets): {env_med:10.1f}\n"
             f"  raw mj_step loop steps/s (1 thread)      : {raw_med:10.1f}\n"
             f"  ratio env/raw                            : {env_med / raw_med:10.3f}\n"
+            f"{hf}"
             f"  per round ratios: {result['ratio_rounds']}"
         )
     return 0

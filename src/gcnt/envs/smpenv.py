@@ -114,5 +114,6 @@ SMPENV_BENCHMARK = Benchmark(
     preset="smpenv",
     limb_obs_dim=OBS_DIM,
     action_slots=ACTION_SLOTS,
+    train_split="CWHH++:train",
     description="SMPENV: planar walkers, cheetahs, hoppers and humanoids (SMP, Huang et al. 2020)",
 )

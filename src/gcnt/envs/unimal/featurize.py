@@ -255,7 +255,7 @@ class UnimalFeaturizer(Featurizer):
         q /= span
         q *= has
         dq *= has
-        out[..., SLOT0 :: SLOT_WIDTH] = q
+        out[..., SLOT0::SLOT_WIDTH] = q
         out[..., SLOT0 + 1 :: SLOT_WIDTH] = dq
         return out.astype(np.float32)
 

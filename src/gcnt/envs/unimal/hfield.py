@@ -29,7 +29,9 @@ LATERAL_CELLS = np.array([*_NEAR[::-1], *(-c for c in _NEAR[1:])])
 ROWS, COLS = len(LATERAL_CELLS), len(FORWARD_CELLS)
 HFIELD_DIM = ROWS * COLS
 #: index of the sample at the torso (lateral 0, forward 0)
-CENTRE = int(np.nonzero(LATERAL_CELLS == 0)[0][0]) * COLS + int(np.nonzero(FORWARD_CELLS == 0)[0][0])
+CENTRE = int(np.nonzero(LATERAL_CELLS == 0)[0][0]) * COLS + int(
+    np.nonzero(FORWARD_CELLS == 0)[0][0]
+)
 
 assert (ROWS, COLS, HFIELD_DIM) == (47, 30, 1410)
 

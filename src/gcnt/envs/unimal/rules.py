@@ -75,7 +75,9 @@ class UnimalRules(TaskRules):
             x0 = W.INCLINE_START_X
             data.qpos[a : a + 3] = (x0 - self.z0 * s, 0.0, x0 * W.INCLINE_TAN + self.z0 * c)
             pitch = np.zeros(4)  # rotation about y by -10°: +x turns up the slope
-            mujoco.mju_axisAngle2Quat(pitch, np.array([0.0, 1.0, 0.0]), -math.radians(W.INCLINE_DEG))
+            mujoco.mju_axisAngle2Quat(
+                pitch, np.array([0.0, 1.0, 0.0]), -math.radians(W.INCLINE_DEG)
+            )
             quat = np.zeros(4)
             mujoco.mju_mulQuat(quat, pitch, data.qpos[a + 3 : a + 7].copy())
             data.qpos[a + 3 : a + 7] = quat

@@ -97,13 +97,14 @@ def draw_boxes(rng: np.random.Generator) -> np.ndarray:
     lo, hi = W.BOX_HALF_SIDE
     x_lo, x_hi = W.OBS_X[0] + 6.0, W.OBS_X[1] - 6.0  # centres in [3 + l, 91 - l)
     for _ in range(W.MAX_BOXES):
-        l, w = rng.uniform(lo, hi, 2)
+        hx, hy = rng.uniform(lo, hi, 2)
         for _try in range(W.BOX_PLACEMENT_TRIES):
-            x = rng.uniform(x_lo + l, x_hi - l)
-            y = rng.uniform(W.OBS_Y[0] + w, W.OBS_Y[1] - w)
+            x = rng.uniform(x_lo + hx, x_hi - hx)
+            y = rng.uniform(W.OBS_Y[0] + hy, W.OBS_Y[1] - hy)
             p = boxes[:n]
-            if not np.any((np.abs(p[:, 0] - x) < p[:, 2] + l) & (np.abs(p[:, 1] - y) < p[:, 3] + w)):
-                boxes[n] = x, y, l, w
+            overlap = (np.abs(p[:, 0] - x) < p[:, 2] + hx) & (np.abs(p[:, 1] - y) < p[:, 3] + hy)
+            if not overlap.any():
+                boxes[n] = x, y, hx, hy
                 n += 1
                 break
     return boxes[:n].copy()
@@ -157,7 +158,10 @@ class ObstacleField:
     def __init__(self, model: mujoco.MjModel):
         self.model = model
         self.geoms = np.array(
-            [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"box/{i}") for i in range(W.MAX_BOXES)]
+            [
+                mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"box/{i}")
+                for i in range(W.MAX_BOXES)
+            ]
         )
         if (self.geoms < 0).any():
             raise ValueError(f"the Obstacles model lacks {W.MAX_BOXES} geoms named 'box/i'")

@@ -112,14 +112,27 @@ def _world_parts(world: str) -> tuple[list[ET.Element], list[ET.Element]]:
     assets = [
         ET.Element(
             "texture",
-            {"name": "world_grid", "type": "2d", "builtin": "checker", "width": "512",
-             "height": "512", "rgb1": ".2 .3 .4", "rgb2": ".1 .2 .3", "mark": "edge",
-             "markrgb": ".3 .4 .5"},
+            {
+                "name": "world_grid",
+                "type": "2d",
+                "builtin": "checker",
+                "width": "512",
+                "height": "512",
+                "rgb1": ".2 .3 .4",
+                "rgb2": ".1 .2 .3",
+                "mark": "edge",
+                "markrgb": ".3 .4 .5",
+            },
         ),  # fmt: skip
         ET.Element(
             "material",
-            {"name": "world_grid", "texture": "world_grid", "texrepeat": "1 1",
-             "texuniform": "true", "reflectance": "0"},
+            {
+                "name": "world_grid",
+                "texture": "world_grid",
+                "texrepeat": "1 1",
+                "texuniform": "true",
+                "reflectance": "0",
+            },
         ),  # fmt: skip
         ET.Element("material", {"name": "world_wall", "rgba": ".45 .45 .5 1"}),
         ET.Element("material", {"name": "world_box", "rgba": ".6 .35 .3 1"}),
