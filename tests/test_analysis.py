@@ -73,7 +73,10 @@ def sweep(tmp_path: Path) -> Path:
             steps = [1000, 2000, 3000, 4000] if seed == 0 else [1500, 2500, 4000]
             ev = {
                 f"step{steps[-1]}": {r: level + seed for r in TRAIN + TEST},
-                f"test-step{steps[-1]}": {TEST[0]: level * 2 + seed, TEST[1]: 50.0 * seed},
+                f"test-step{steps[-1]}-deterministic-seed10000": {
+                    TEST[0]: level * 2 + seed,
+                    TEST[1]: 50.0 * seed,
+                },
             }
             fake_run(tmp_path, method, seed, steps=steps, level=level, evals=ev)
     return tmp_path
@@ -167,7 +170,9 @@ def test_bootstrap_ci_is_stratified_and_covers_the_point() -> None:
 
 
 def test_variants_command(sweep: Path) -> None:
-    assert main(["variants", str(sweep), "--sets", "test", "--iqm", "--profile", "--reps", "200"]) == 0
+    assert (
+        main(["variants", str(sweep), "--sets", "test", "--iqm", "--profile", "--reps", "200"]) == 0
+    )
     data = json.loads((sweep / "figures" / "variants.json").read_text())
     assert set(data["test"]) == {"gcnt", "swat", "amorpheus"}
     est = data["test"]["gcnt"]["mean"]
@@ -212,3 +217,10 @@ def test_tables_markdown() -> None:
     assert "| gcnt | 10 | 5 | 15 | – |" in md
     text, rows = params_table("smpenv")
     assert "gcnt" in text and "swat" in text
+
+
+def test_eval_labels_old_and_new_file_names(sweep: Path) -> None:
+    run = find_runs([sweep])[0]
+    labels = sorted((e.label, e.env_steps) for e in run.evals())
+    assert labels == [("", 4000), ("test", 4000)]
+    assert [e.matches("test") for e in sorted(run.evals(), key=lambda e: e.label)] == [False, True]

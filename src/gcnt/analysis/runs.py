@@ -64,7 +64,8 @@ class EvalRecord:
         return any(name == s or name in str(s).split(":") for s in spec)
 
 
-_STEP = re.compile(r"^(?P<label>.*?)[-_]?step(?P<steps>\d+)$")
+#: ``step<N>`` (training), ``<label>-step<N>`` or ``<label>-step<N>-<mode>-seed<S>`` (gcnt eval)
+_STEP = re.compile(r"^(?P<label>.*?)[-_]?step(?P<steps>\d+)(?:[-_].*)?$")
 
 
 def _get(d: Any, *path: str, default: Any = None) -> Any:

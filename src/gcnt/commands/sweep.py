@@ -221,7 +221,11 @@ def run(args: argparse.Namespace) -> int:
                 )
 
                 def report(spec) -> None:
-                    print(f"{now()}  {spec.id}: {spec.state}", flush=True)
+                    evals = ", ".join(f"eval {k}: {v}" for k, v in spec.eval_state.items())
+                    print(
+                        f"{now()}  {spec.id}: {spec.state}{'; ' + evals if evals else ''}",
+                        flush=True,
+                    )
 
                 run_local(manifest, jobs=jobs, cpus_per_run=args.cpus_per_run, on_change=report)
     except SweepError as e:
