@@ -88,7 +88,13 @@ def structural_vectors(
         **(kwargs or {}),
     )
     if actor_state is not None:
-        actor.load_state_dict(actor_state)
+        missing, unexpected = actor.load_state_dict(actor_state, strict=False)
+        missing = [k for k in missing if not k.rsplit(".", 1)[-1].startswith("table_")]
+        if missing or unexpected:
+            raise AnalysisError(
+                f"{method}: the checkpoint's actor does not fit the network "
+                f"(missing {missing[:3]}, unexpected {list(unexpected)[:3]})"
+            )
     actor.eval()
     k = max(r.num_limbs for r in robots)
     td = TensorDict(
@@ -122,7 +128,9 @@ def run_embedding(run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS) -> Embe
     if not ckpt.is_file():
         raise AnalysisError(f"{run.path}: no checkpoint to read the network from")
     state = torch.load(ckpt, map_location="cpu", weights_only=False)
-    actor_state = state.get("actor") if isinstance(state, dict) else None
+    state = state if isinstance(state, dict) else {}
+    policy = state.get("policy") if isinstance(state.get("policy"), dict) else {}
+    actor_state = policy.get("actor") or state.get("actor")
     if actor_state is None:
         raise AnalysisError(f"{ckpt}: no 'actor' weights in the checkpoint")
     return structural_vectors(
