@@ -32,8 +32,9 @@ class EnvConfig:
     benchmark: str = "smpenv"
     #: the benchmark's world (UNIMAL: ft | incline | mt | obstacles); unset: its default
     world: str | None = None
-    #: robots to train on: names (walker_7_main), robot files or folders, or Benchmark:split
-    robots: list[str] = field(default_factory=lambda: ["Walker++:train"])
+    #: robots to train on: names (walker_7_main), robot files or folders, or Benchmark:split.
+    #: No default: a recipe that names no robots cannot train
+    robots: list[str] = field(default_factory=list)
     #: zero-shot robots (evaluated, never trained on); same syntax as ``robots``
     test_robots: list[str] = field(default_factory=list)
     #: copies of each training robot stepped in parallel (more data per lockstep step)
@@ -188,6 +189,10 @@ class Recipe:
         if self.eval.episodes < 0 or self.eval.interval < 0:
             raise ValueError("eval.episodes and eval.interval must be >= 0")
         _check_device(self.device)
+        # relations between the active algorithm's settings and the shared ones
+        relations = getattr(self.sections.get(self.algo), "check_recipe", None)
+        if callable(relations):
+            relations(self)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -325,7 +330,12 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
     if "=" not in override:
         raise RecipeError(f"override {override!r} must look like section.key=value")
     key, raw = override.split("=", 1)
-    value = yaml.safe_load(raw) if raw != "" else ""
+    try:
+        value = yaml.safe_load(raw) if raw != "" else ""
+    except yaml.YAMLError as e:
+        raise RecipeError(
+            f"override {override!r}: the value is not valid YAML ({_yaml_problem(e)})"
+        ) from None
     parts = key.strip().split(".")
     node = data
     for p in parts[:-1]:
@@ -362,14 +372,24 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
         data = yaml.safe_load(path.read_text()) or {}
     except OSError as e:
         raise RecipeError(f"{path}: cannot read recipe ({e.strerror})") from e
+    except UnicodeDecodeError:
+        raise RecipeError(f"{path}: not a text file; a recipe is YAML") from None
     except yaml.YAMLError as e:
-        raise RecipeError(f"{path}: not valid YAML ({e})") from e
+        raise RecipeError(f"{path}: not valid YAML ({_yaml_problem(e)})") from None
     if not isinstance(data, dict):
         raise RecipeError(f"{path}: a recipe must be a mapping of sections")
     base = data.pop("base", None)
     if base is None:
         return data
     return _merge(_read_yaml(path.parent / base, (*chain, path.resolve())), data)
+
+
+def _yaml_problem(e: yaml.YAMLError) -> str:
+    """A YAML error in one line: the problem and where."""
+    mark = getattr(e, "problem_mark", None)
+    problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    return f"{problem}{where}"
 
 
 def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
@@ -379,7 +399,13 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     base's, section by section.
     """
     path = Path(path)
-    return recipe_from_dict(_read_yaml(path), overrides, source=str(path))
+    data = _read_yaml(path)
+    if not data:
+        raise RecipeError(
+            f"{path}: the recipe is empty; it must say at least what to train on (env.robots), "
+            "e.g. start from recipes/quickstart.yaml or write base: <a recipe>"
+        )
+    return recipe_from_dict(data, overrides, source=str(path))
 
 
 def save_recipe(recipe: Recipe, path: str | Path) -> None:

@@ -70,3 +70,20 @@ class TD3Config:
             v = getattr(self, key)
             if not v >= 0 or v == float("inf"):
                 raise ValueError(f"{key} must be >= 0 and finite, got {v}")
+        if self.max_grad_norm != self.max_grad_norm or self.max_grad_norm == float("inf"):
+            raise ValueError(f"max_grad_norm must be finite (<= 0: off), got {self.max_grad_norm}")
+        if self.batch_size > min(self.buffer_size_per_robot, self.buffer_total_size):
+            raise ValueError(
+                f"batch_size {self.batch_size} is larger than the replay buffer "
+                f"(buffer_size_per_robot {self.buffer_size_per_robot}, buffer_total_size "
+                f"{self.buffer_total_size})"
+            )
+
+    def check_recipe(self, recipe) -> None:
+        """Relations with the shared settings (``recipe`` is the whole recipe)."""
+        total = recipe.collector.total_frames
+        if self.init_random_frames >= total:
+            raise ValueError(
+                f"td3.init_random_frames ({self.init_random_frames}) must be below "
+                f"collector.total_frames ({total}): the policy would never learn"
+            )
