@@ -26,7 +26,9 @@ def _fmt(v: Any) -> str:
 
 def rows_to_markdown(rows: list[dict[str, Any]]) -> str:
     cols = list(dict.fromkeys(k for r in rows for k in r))
-    if "actor" in cols and "critic" in cols and "actor+critic" not in cols:
+    # a column empty in every row (e.g. the world of a one-world benchmark) is left out
+    cols = [c for c in cols if c == "paper" or any(r.get(c) not in (None, "") for r in rows)]
+    if "actor" in cols and "critic" in cols and not {"actor+critic", "total"} & set(cols):
         idx = cols.index("critic") + 1
         cols.insert(idx, "actor+critic")
         rows = [
