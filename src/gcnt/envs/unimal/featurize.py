@@ -213,6 +213,10 @@ class UnimalFeaturizer(Featurizer):
             dst[...] = src
 
     def compute(self, rows: np.ndarray | None = None) -> np.ndarray:
+        return self.features(rows).astype(np.float32)
+
+    def features(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """The observations of :meth:`compute` in float64 [n, K, 52]."""
         if rows is None:
             xpos, xquat, cvel, com, qpos, qvel = (
                 self.xpos, self.xquat, self.cvel, self.com, self.qpos, self.qvel
@@ -257,7 +261,7 @@ class UnimalFeaturizer(Featurizer):
         dq *= has
         out[..., SLOT0::SLOT_WIDTH] = q
         out[..., SLOT0 + 1 :: SLOT_WIDTH] = dq
-        return out.astype(np.float32)
+        return out
 
     def compute_root(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
         if self._terrains is None:

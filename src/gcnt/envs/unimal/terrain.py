@@ -182,10 +182,17 @@ class ObstacleField:
         self.top = 2 * W.BOX_HALF_HEIGHT + W.BOX_LIFT
 
     def redraw(self, rng: np.random.Generator) -> None:
+        self.place(draw_boxes(rng))
+
+    def place(self, boxes: np.ndarray) -> None:
+        """Put boxes [n, 4] (centre x, centre y, half-side x, half-side y) into the model and the
+        height map's lookup table; the other box geoms are parked without contacts."""
         m, g = self.model, self.geoms
-        boxes = draw_boxes(rng)
         n = len(boxes)
-        self.boxes = boxes
+        if n > len(g):
+            raise ValueError(f"{n} boxes; the Obstacles model holds at most {len(g)}")
+        self.boxes = np.array(boxes, dtype=np.float64).reshape(n, 4)
+        boxes = self.boxes
         m.geom_pos[g] = self.park_pos
         m.geom_contype[g] = 0
         m.geom_conaffinity[g] = 0
