@@ -396,6 +396,8 @@ class BatchedMujocoEnv(EnvBase):
         self._featurizer_factory = featurizer
         # robot pool (see use_robot_pool): None while each sub-env keeps its robot
         self._pool_sample: Callable[[np.ndarray], np.ndarray] | None = None
+        #: the ``sample`` given to :meth:`use_robot_pool` (None: each sub-env keeps its robot)
+        self.robot_pool_sampler: Callable[[np.ndarray], np.ndarray] | None = None
         self._pool_models: list[mujoco.MjModel] = []
 
         # Distinct robots and their models.
@@ -903,7 +905,7 @@ class BatchedMujocoEnv(EnvBase):
         self.distinct_robots = pool
         self.local_ids = torch.tensor([index[_robot_key(r)] for r in self.robots])
         self.morph_ids = self.local_ids.clone()
-        self._pool_sample = sample
+        self._pool_sample = self.robot_pool_sampler = sample
         self._relayout()
 
     def _reassign(self, rows: np.ndarray, ids) -> None:

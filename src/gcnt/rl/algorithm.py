@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import importlib
 from abc import ABC, abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -43,6 +43,10 @@ class CollectSettings:
     frames_per_batch: int
     #: frames of uniformly random actions before the policy acts (a multiple of the above)
     init_random_frames: int = 0
+    #: env constructors, one per worker process: collect with torchrl's MultiSyncCollector over
+    #: them (the policy's weights are sent to the workers after each batch is processed) instead
+    #: of the training env in this process. Their envs together must match the training env.
+    env_makers: list[Callable[[], EnvBase]] | None = None
 
 
 class Algorithm(ABC):
@@ -69,6 +73,14 @@ class Algorithm(ABC):
     def train_env_copies(cls, recipe: Recipe, num_robots: int) -> int:
         """Sub-envs per training robot in the training env (default: ``env.copies``)."""
         return recipe.env.copies
+
+    @classmethod
+    def make_train_env(cls, recipe: Recipe, robots: Sequence[Robot]) -> EnvBase:
+        """The training env over ``robots`` (default: the benchmark's env with
+        :meth:`train_env_copies` copies of each robot; PPO builds robot-sampling slots)."""
+        from gcnt.rl.factories import make_env
+
+        return make_env(recipe, robots, copies=cls.train_env_copies(recipe, len(robots)))
 
     # ------------------------------------------------------------------ collection and learning
     @abstractmethod

@@ -1,0 +1,490 @@
+"""PPO for one policy over many robots, behind the algorithm seam (``gcnt.rl.algorithm``).
+
+Built from torchrl parts: ``ClipPPOLoss`` (ratio clip, value clipped around the old value),
+``GAE`` (timeouts bootstrap with V(s): truncation is not termination), a ``ReplayBuffer`` sampled
+without replacement for the mini-batches, and the shared run loop's collector. Settings: the
+``ppo:`` recipe section (``gcnt.rl.ppo_config``; defaults are the paper's table 4).
+
+One iteration, read top to bottom (:meth:`PPOLearner.learn`):
+
+1. ``num_envs`` envs step ``steps_per_env`` times in lockstep with the policy's sampled actions
+   (dropout off); observations are normalised with the statistics frozen for this iteration;
+2. rewards are divided by the running std of the discounted return (clipped);
+3. GAE (gamma, lambda) with the critic, advantages normalised over the iteration;
+4. ``epochs`` passes over the data in mini-batches; before each mini-batch step, if
+   mean(log pi_old - log pi) of the mini-batch exceeds the method's threshold, the rest of the
+   iteration is skipped (KL early stop); Adam with a warm-up + cosine learning rate and
+   gradient-norm clipping;
+5. the observation statistics merge this iteration's observations (used from the next one), and
+   the robot sampler updates its probabilities from the finished episodes' lengths.
+
+With ``robot_sampling: sampled`` the envs are slots: each takes a robot drawn by
+:class:`~gcnt.rl.robot_sampler.RobotSampler` at every reset (``BatchedMujocoEnv.use_robot_pool``).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import time
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+from torchrl.envs import EnvBase, RewardSum, TransformedEnv
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from gcnt.morphology import Robot
+from gcnt.nn.graph_lookup import is_table_key
+from gcnt.nn.keys import ACTION, HFIELD, LOG_PROB, MASK, MORPH_ID, OBS, VALUE
+from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl.algorithm import Algorithm, CollectSettings
+from gcnt.rl.factories import base_env, benchmark_of, env_widths, make_env, make_net
+from gcnt.rl.normalize import ObsNormalizer, RewardScaler
+from gcnt.rl.ppo_config import PPOConfig
+from gcnt.rl.robot_sampler import RobotDraw, RobotSampler
+
+log = logging.getLogger(__name__)
+
+#: keys a mini-batch needs (the static robot keys are restored from ``morph_id``)
+_BATCH_KEYS = (MORPH_ID, OBS, ACTION, LOG_PROB, VALUE, "advantage", "value_target", HFIELD)
+
+
+class NormalizedPolicy(TensorDictModuleBase):
+    """``actor`` on normalised ``limbs/obs``; the input TensorDict keeps the raw observation."""
+
+    def __init__(self, norm: ObsNormalizer | None, actor: TensorDictModuleBase):
+        super().__init__()
+        self.norm, self.actor = norm, actor
+        self.in_keys = list(dict.fromkeys([*actor.in_keys, MASK]))
+        self.out_keys = [k for k in actor.out_keys if k != OBS]
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        if self.norm is None:
+            return self.actor(td)
+        sub = td.select(*self.actor.in_keys, strict=False)
+        sub.set(OBS, self.norm(td.get(OBS), td.get(MASK)))
+        out = self.actor(sub)
+        for key in self.out_keys:
+            if key in out.keys(True):
+                td.set(key, out.get(key))
+        return td
+
+
+def lr_factor(iteration: int, total: int, config: PPOConfig) -> float:
+    """The learning-rate multiplier of ``iteration`` (0-based) in a run of ``total``: a linear
+    warm-up from ``warmup_start`` to 1 over ``warmup_iterations``, times a cosine decay."""
+    f = 1.0
+    if config.lr_schedule == "cosine":
+        f = 0.5 * (1.0 + math.cos(math.pi * min(iteration, total) / max(total, 1)))
+    if iteration < config.warmup_iterations:
+        w = config.warmup_start
+        f *= w + (1.0 - w) * iteration / config.warmup_iterations
+    return f
+
+
+class PPOLearner:
+    """Networks, normalisation, loss, GAE, optimiser and one iteration's update (no env)."""
+
+    def __init__(self, recipe: Recipe, env: EnvBase, iterations: int):
+        o: PPOConfig = recipe.algo_config
+        self.recipe, self.config, self.iterations = recipe, o, iterations
+        self.actor = make_net(recipe, env, "ppo_actor", ppo_std=o.std, ppo_init_std=o.init_std)
+        self.critic = make_net(recipe, env, "ppo_critic")
+        self.actor.eval()  # dropout off except in the update
+        self.critic.eval()
+        self.loss = ClipPPOLoss(
+            self.actor,
+            self.critic,
+            clip_epsilon=o.clip_epsilon,
+            entropy_bonus=True,  # logged; weight entropy_coeff (the paper: 0)
+            entropy_coeff=o.entropy_coeff,
+            critic_coeff=o.critic_coeff,
+            loss_critic_type="l2",
+            normalize_advantage=False,  # done over the whole iteration, below
+            clip_value=o.clip_value if o.clip_value > 0 else None,
+            functional=False,
+        )
+        self.gae = GAE(gamma=o.gamma, lmbda=o.gae_lambda, value_network=self.critic,
+                       average_gae=False, shifted=True)
+        self.params = [
+            p for net in (self.actor, self.critic) for p in net.parameters() if p.requires_grad
+        ]
+        self.opt = torch.optim.Adam(self.params, lr=o.lr, eps=o.adam_eps)
+        widths = env_widths(env)
+        k = base_env(env).max_limbs
+        self.obs_norm = (
+            ObsNormalizer(k, widths["obs_dim"], o.obs_clip).to(recipe.device) if o.obs_norm else None
+        )
+        self.kl_stop = o.kl_threshold(recipe.network.name)
+        self.iteration = 0
+        self.updates = 0
+
+    # ------------------------------------------------------------------ one iteration
+    def lr_now(self) -> float:
+        return self.config.lr * lr_factor(self.iteration, self.iterations, self.config)
+
+    def normalized(self, data: TensorDictBase) -> TensorDictBase:
+        """A shallow copy of ``data`` with its (root and next) observations normalised."""
+        out = data.clone(False)
+        if self.obs_norm is not None:
+            out.set(OBS, self.obs_norm(data.get(OBS), data.get(MASK)))
+            nxt = out.get("next").clone(False)
+            nxt.set(OBS, self.obs_norm(data.get(("next", *OBS)), data.get(("next", *MASK))))
+            out.set("next", nxt)
+        return out
+
+    @torch.no_grad()
+    def advantages(self, data: TensorDictBase) -> TensorDictBase:
+        """GAE on a batch [N, T] (time last) with normalised observations and scaled rewards;
+        writes ``advantage`` (normalised over the batch if configured), ``value_target`` and
+        ``state_value``."""
+        self.gae(data)
+        if self.config.normalize_advantage:
+            adv = data.get("advantage")
+            data.set("advantage", (adv - adv.mean()) / (adv.std() + 1e-8))
+        return data
+
+    def learn(self, data: TensorDictBase) -> Iterator[dict[str, float]]:
+        """One PPO iteration on ``data`` [N, T] (raw observations, scaled rewards); yields one
+        loss dict per mini-batch step. Updates the observation statistics at the end."""
+        o = self.config
+        device = self.recipe.device
+        batch = self.advantages(self.normalized(data.to(device)))
+        keys = [k for k in _BATCH_KEYS if k in batch.keys(True)]
+        flat = batch.select(*keys).reshape(-1)
+        n = flat.numel()
+        mb = min(o.minibatch_size, n)
+        rb = self._buffer(n, mb)
+        rb.extend(flat)
+        lr = self.lr_now()
+        for group in self.opt.param_groups:
+            group["lr"] = lr
+        self.stopped_at: tuple[int, int] | None = None
+        self.last_kl = float("nan")
+        self.actor.train()
+        self.critic.train()
+        try:
+            for epoch in range(o.epochs):
+                for step in range(n // mb):
+                    out = self.loss(rb.sample())
+                    kl = float(out["kl_approx"])
+                    self.last_kl = kl
+                    if self.kl_stop > 0 and kl > self.kl_stop:
+                        self.stopped_at = (epoch, step)
+                        break
+                    total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+                    self.opt.zero_grad(set_to_none=True)
+                    total.backward()
+                    if o.max_grad_norm > 0:
+                        grad = float(torch.nn.utils.clip_grad_norm_(self.params, o.max_grad_norm))
+                    else:
+                        grad = float(torch.nn.utils.clip_grad_norm_(self.params, float("inf")))
+                    self.opt.step()
+                    self.updates += 1
+                    yield {
+                        "loss_policy": float(out["loss_objective"].detach()),
+                        "loss_critic": float(out["loss_critic"].detach()),
+                        "approx_kl": kl,
+                        "clip_fraction": float(out["clip_fraction"]),
+                        "value_clip_fraction": float(out.get("value_clip_fraction", float("nan"))),
+                        "explained_variance": float(out["explained_variance"]),
+                        "entropy": float(out["entropy"]),
+                        "grad_norm": grad,
+                    }
+                if self.stopped_at is not None:
+                    break
+        finally:
+            self.actor.eval()
+            self.critic.eval()
+        if self.obs_norm is not None:
+            self.obs_norm.update(data.get(OBS), data.get(MASK))
+        self.iteration += 1
+
+    def _buffer(self, n: int, mb: int) -> ReplayBuffer:
+        """The iteration's data, sampled in mini-batches without replacement (one per learner,
+        emptied each iteration)."""
+        rb = getattr(self, "_rb", None)
+        if rb is None or self._rb_shape != (n, mb):
+            rb = self._rb = ReplayBuffer(
+                storage=LazyTensorStorage(n, device=self.recipe.device),
+                sampler=SamplerWithoutReplacement(drop_last=True),
+                batch_size=mb,
+            )
+            self._rb_shape = (n, mb)
+        else:
+            rb.empty()
+        return rb
+
+    # ------------------------------------------------------------------ state
+    def weights(self, net: torch.nn.Module) -> dict:
+        return {k: v for k, v in net.state_dict().items() if not is_table_key(k)}
+
+    def state_dict(self) -> dict:
+        return {
+            "actor": self.weights(self.actor),
+            "critic": self.weights(self.critic),
+            "opt": self.opt.state_dict(),
+            "obs_norm": None if self.obs_norm is None else self.obs_norm.state_dict(),
+            "iteration": self.iteration,
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        _load_weights(self.actor, state["actor"])
+        _load_weights(self.critic, state["critic"])
+        self.opt.load_state_dict(state["opt"])
+        if self.obs_norm is not None and state.get("obs_norm") is not None:
+            self.obs_norm.load_state_dict(state["obs_norm"])
+        self.iteration = state["iteration"]
+        self.updates = state["updates"]
+
+
+class EpisodeLengths:
+    """Lengths of the episodes that end in each batch (carried across batches per env)."""
+
+    def __init__(self, num_envs: int):
+        self.steps = np.zeros(num_envs, np.int64)
+
+    def __call__(self, data: TensorDictBase) -> tuple[np.ndarray, np.ndarray]:
+        """``(robot ids, lengths)`` of the episodes that ended in ``data`` [N, T]."""
+        done = data.get(("next", "done")).reshape(data.shape).cpu().numpy()
+        morph = data.get(MORPH_ID).reshape(data.shape).cpu().numpy()
+        robots, lengths = [], []
+        steps = self.steps
+        for t in range(done.shape[1]):
+            steps += 1
+            d = done[:, t]
+            if d.any():
+                robots.append(morph[d, t])
+                lengths.append(steps[d].copy())
+                steps[d] = 0
+        if not robots:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.concatenate(robots), np.concatenate(lengths)
+
+
+def make_slot_env(
+    recipe: Recipe,
+    robots: Sequence[Robot],
+    num_envs: int,
+    *,
+    draw: RobotDraw | None,
+    seed: int,
+    num_threads: int | None = None,
+) -> TransformedEnv:
+    """``num_envs`` envs over the run's ``robots``: with ``draw``, slots that take a robot drawn
+    at every reset (``morph_id`` = index in ``robots``); without, ``num_envs / len(robots)``
+    copies of each robot. Episode returns are tracked (``RewardSum``)."""
+    r = len(robots)
+    k = recipe.env.max_limbs or max(x.num_limbs for x in robots)
+    if draw is None:
+        if num_envs % r:
+            raise RecipeError(
+                f"ppo.robot_sampling: fixed needs ppo.num_envs ({num_envs}) to be a multiple of "
+                f"the {r} training robots; use robot_sampling: sampled"
+            )
+        return make_env(recipe, robots, copies=num_envs // r, seed=seed, max_limbs=k,
+                        num_threads=num_threads)
+    bench = benchmark_of(recipe)
+    first = [i % r for i in range(num_envs)]
+    env = bench.make_env(
+        [robots[i] for i in first],
+        max_limbs=k,
+        max_episode_steps=recipe.env.max_episode_steps,
+        seed=seed,
+        num_threads=num_threads if num_threads is not None else recipe.env.num_threads,
+        robot_ids=first,
+        world=bench.check_world(recipe.env.world),
+    )
+    env.use_robot_pool(robots, draw)
+    return TransformedEnv(env, RewardSum())
+
+
+class PPO(Algorithm):
+    """PPO behind the run loop: slot envs and robot sampling, normalisation, iterations."""
+
+    name = "ppo"
+
+    @classmethod
+    def make_train_env(cls, recipe: Recipe, robots: Sequence[Robot]) -> EnvBase:
+        o: PPOConfig = recipe.algo_config
+        draw = None
+        if o.robot_sampling == "sampled":
+            draw = RobotDraw(RobotSampler.uniform_probs(len(robots)), seed=recipe.seed + 1)
+        return make_slot_env(recipe, robots, o.num_envs, draw=draw, seed=recipe.seed)
+
+    def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:
+        super().__init__(recipe, env, robots)
+        o: PPOConfig = self.config
+        if env.batch_size[0] != o.num_envs:
+            raise RecipeError(
+                f"ppo: the training env has {env.batch_size[0]} envs, ppo.num_envs is "
+                f"{o.num_envs} (build it with PPO.make_train_env)"
+            )
+        self.frames_per_batch = o.num_envs * o.steps_per_env
+        self.iterations = max(1, -(-recipe.collector.total_frames // self.frames_per_batch))
+        self.learner = PPOLearner(recipe, env, self.iterations)
+        draw = base_env(env).robot_pool_sampler
+        self.draw: RobotDraw | None = draw if isinstance(draw, RobotDraw) else None
+        self.sampler = RobotSampler(
+            len(self.robots),
+            uniform_iterations=o.uniform_iterations,
+            warmup_episodes=o.ema_warmup_episodes,
+            alpha=o.ema_alpha,
+            probs=None if self.draw is None else self.draw.probs,  # the env reads these
+        )
+        self.scaler = RewardScaler(o.num_envs, o.gamma, o.reward_clip) if o.reward_scaling else None
+        self.lengths = EpisodeLengths(o.num_envs)
+        self._extras: dict[str, float] = {}
+        self._t_end: float | None = None
+
+    @property
+    def updates(self) -> int:
+        return self.learner.updates
+
+    @updates.setter
+    def updates(self, value: int) -> None:
+        if hasattr(self, "learner"):
+            self.learner.updates = value
+
+    # ------------------------------------------------------------------ collection and learning
+    def policy(self) -> NormalizedPolicy:
+        return NormalizedPolicy(self.learner.obs_norm, self.learner.actor)
+
+    def collect_settings(self, env_steps: int) -> CollectSettings:
+        o: PPOConfig = self.config
+        makers = None
+        if o.collector == "multi":
+            per = o.num_envs // o.workers
+            sampled = o.robot_sampling == "sampled"
+            makers = [
+                functools.partial(
+                    make_slot_env,
+                    self.recipe,
+                    self.robots,
+                    per,
+                    draw=self.sampler.drawer(self.recipe.seed + 1 + 1000 * (w + 1))
+                    if sampled else None,
+                    seed=self.recipe.seed + 1000 * (w + 1),
+                    num_threads=1,
+                )
+                for w in range(o.workers)
+            ]
+            if not sampled and per % len(self.robots):
+                raise RecipeError(
+                    f"ppo.collector: multi with fixed robots needs num_envs / workers ({per}) to "
+                    f"be a multiple of the {len(self.robots)} robots"
+                )
+        return CollectSettings(self.policy(), self.frames_per_batch, 0, env_makers=makers)
+
+    def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
+        o: PPOConfig = self.config
+        t0 = time.perf_counter()
+        collect_s = t0 - self._t_end if self._t_end is not None else float("nan")
+        data = data.reshape(o.num_envs, -1)  # [N, T]; a multi-process collector stacks workers
+        robots, lengths = self.lengths(data)
+        self.sampler.add_episodes(robots, lengths)
+        if self.scaler is not None:
+            data = data.clone(False)
+            nxt = data.get("next").clone(False)
+            nxt.set("reward", self.scaler(nxt.get("reward"), nxt.get("done")))
+            data.set("next", nxt)
+        lr = self.learner.lr_now()
+        yield from self.learner.learn(data)
+        self.sampler.end_iteration()
+        update_s = time.perf_counter() - t0
+        stop = self.learner.stopped_at
+        mb_per_epoch = self.frames_per_batch // min(o.minibatch_size, self.frames_per_batch)
+        self._extras = {
+            "lr": lr,
+            "iteration": self.learner.iteration,
+            "kl_last": self.learner.last_kl,
+            "kl_stopped": float(stop is not None),
+            "epochs_done": (stop[0] + stop[1] / mb_per_epoch) if stop else float(o.epochs),
+            "update_s": update_s,
+            "collect_env_steps_per_s": data.numel() / collect_s if collect_s > 0 else float("nan"),
+            "reward_scale_std": self.scaler.std if self.scaler is not None else 1.0,
+            **self.sampler.stats(),
+        }
+        self._t_end = time.perf_counter()
+
+    def log_extras(self) -> dict[str, float]:
+        out, self._extras = self._extras, {}
+        return out
+
+    def resolved(self) -> dict[str, Any]:
+        o: PPOConfig = self.config
+        return {
+            "num_envs": o.num_envs,
+            "frames_per_batch": self.frames_per_batch,
+            "iterations": self.iterations,
+            "minibatches_per_epoch": self.frames_per_batch // min(o.minibatch_size,
+                                                                  self.frames_per_batch),
+            "kl_stop": self.learner.kl_stop,
+        }
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "learner": self.learner.state_dict(),
+            "sampler": self.sampler.state_dict(),
+            "draw_rng": None if self.draw is None else self.draw.rng.bit_generator.state,
+            "reward_scaler": None if self.scaler is None else self.scaler.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.learner.load_state_dict(state["learner"])
+        self.sampler.load_state_dict(state["sampler"])
+        if self.draw is not None and state.get("draw_rng") is not None:
+            self.draw.rng.bit_generator.state = state["draw_rng"]
+        if self.scaler is not None and state.get("reward_scaler") is not None:
+            self.scaler.load_state_dict(state["reward_scaler"])
+
+    # ------------------------------------------------------------------ evaluation
+    def policy_state(self) -> dict[str, Any]:
+        norm = self.learner.obs_norm
+        return {
+            "actor": self.learner.weights(self.learner.actor),
+            "obs_norm": None if norm is None else norm.state_dict(),
+        }
+
+    @classmethod
+    def eval_policy(
+        cls, recipe: Recipe, state: dict[str, Any], env: EnvBase, *, deterministic: bool = True
+    ) -> TensorDictModuleBase:
+        """The actor with frozen observation statistics; sampled actions unless
+        ``deterministic`` (the caller's exploration type picks mean or sample)."""
+        o: PPOConfig = recipe.algo_config
+        actor = make_net(recipe, env, "ppo_actor", ppo_std=o.std, ppo_init_std=o.init_std)
+        _load_weights(actor, state["actor"])
+        actor.eval()
+        norm = None
+        if state.get("obs_norm") is not None:
+            k, f = state["obs_norm"]["mean"].shape
+            trained = ObsNormalizer(k, f)
+            trained.load_state_dict(state["obs_norm"])
+            norm = trained.for_limbs(base_env(env).max_limbs).to(recipe.device)
+            norm.clip = o.obs_clip
+        return NormalizedPolicy(norm, actor).eval()
+
+
+def _load_weights(module: torch.nn.Module, weights: dict) -> None:
+    """Load network weights (the robot table is rebuilt, not loaded); a mismatch names itself."""
+    try:
+        missing, unexpected = module.load_state_dict(weights, strict=False)
+    except RuntimeError as e:
+        raise ValueError(f"the checkpoint does not fit the recipe's network: {e}") from None
+    missing = [k for k in missing if not is_table_key(k)]
+    if missing or unexpected:
+        raise ValueError(
+            f"the checkpoint does not fit the recipe's network: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )

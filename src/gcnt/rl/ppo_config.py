@@ -1,0 +1,124 @@
+"""The ``ppo:`` recipe section (the paper's PPO settings on UNIMAL, table 4, are the defaults).
+
+Imported by the recipe loader without torch, so keep this module free of heavy imports.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+
+@dataclass
+class PPOConfig:
+    # --- collection
+    #: parallel environments stepping in lockstep (the paper: 32); with robot sampling each is a
+    #: slot that takes a newly drawn training robot at every reset
+    num_envs: int = 32
+    #: lockstep steps per environment and iteration (the paper: 2560; 32 x 2560 = 81920 frames)
+    steps_per_env: int = 2560
+    #: "single": one process steps all envs (threads for the physics); "multi": torchrl's
+    #: MultiSyncCollector over ``workers`` processes, each stepping num_envs / workers envs
+    collector: Literal["single", "multi"] = "single"
+    #: processes of the "multi" collector (must divide num_envs)
+    workers: int = 2
+    #: "sampled": a robot per episode, drawn against "the rich get richer" (uniform first, then
+    #: p_i proportional to 1000 / EMA of robot i's episode length); "fixed": num_envs / robots
+    #: copies of each robot (num_envs must be a multiple of the robot count)
+    robot_sampling: Literal["sampled", "fixed"] = "sampled"
+    #: iterations of uniform robot sampling before the episode-length weights take over
+    uniform_iterations: int = 30
+    #: episodes of a robot averaged before its EMA starts, and the EMA's weight of a new length
+    ema_warmup_episodes: int = 10
+    ema_alpha: float = 0.1
+    # --- optimisation
+    #: PPO epochs over each iteration's data and mini-batch size (the paper: 8 and 5120)
+    epochs: int = 8
+    minibatch_size: int = 5120
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    #: policy ratio clip, and the value clip around the old value (<= 0: no value clipping)
+    clip_epsilon: float = 0.2
+    clip_value: float = 0.2
+    #: weight of the critic's squared error in the loss (the paper: 0.2)
+    critic_coeff: float = 0.2
+    #: entropy bonus weight (the paper: 0)
+    entropy_coeff: float = 0.0
+    #: KL early stop: before each mini-batch step, if mean(log pi_old - log pi) of the mini-batch
+    #: exceeds this, the rest of the iteration is skipped. A number, or a mapping from network
+    #: name to threshold with a ``default`` entry (the paper's table 5 differs per method and
+    #: world). <= 0: never stop
+    kl_stop: float | dict[str, float] = field(default_factory=lambda: {"default": 0.05})
+    #: Adam learning rate (peak), epsilon, and the schedule: linear warm-up from
+    #: ``warmup_start`` x lr over ``warmup_iterations``, times a cosine decay over the run's
+    #: iterations ("cosine") or a constant ("constant")
+    lr: float = 3e-4
+    adam_eps: float = 1e-5
+    lr_schedule: Literal["cosine", "constant"] = "cosine"
+    warmup_iterations: int = 5
+    warmup_start: float = 0.1
+    #: gradient-norm clip over actor and critic (<= 0: off)
+    max_grad_norm: float = 0.5
+    #: normalise advantages over the whole iteration (mean 0, std 1)
+    normalize_advantage: bool = True
+    # --- normalisation
+    #: observations normalised per limb slot x feature with running mean / std, clipped
+    obs_norm: bool = True
+    obs_clip: float = 10.0
+    #: rewards divided by the running std of the discounted return, clipped
+    reward_scaling: bool = True
+    reward_clip: float = 10.0
+    # --- policy
+    #: Gaussian std: "fixed" (not trained) at init_std, or "learned" (state-independent log-std)
+    std: Literal["fixed", "learned"] = "fixed"
+    init_std: float = 0.9
+
+    def kl_threshold(self, network: str) -> float:
+        """The KL early-stop threshold of method ``network`` (<= 0: off)."""
+        if isinstance(self.kl_stop, dict):
+            return float(self.kl_stop.get(network, self.kl_stop["default"]))
+        return float(self.kl_stop)
+
+    def check(self) -> None:
+        """Values that cannot train: a ValueError naming the key."""
+        for key in ("num_envs", "steps_per_env", "workers", "epochs", "minibatch_size",
+                    "ema_warmup_episodes"):
+            if getattr(self, key) < 1:
+                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
+        for key in ("uniform_iterations", "warmup_iterations"):
+            if getattr(self, key) < 0:
+                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
+        for key in ("lr", "adam_eps", "init_std", "obs_clip", "reward_clip"):
+            v = getattr(self, key)
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"{key} must be a positive finite number, got {v}")
+        for key in ("gamma", "gae_lambda", "ema_alpha", "warmup_start"):
+            v = getattr(self, key)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{key} must be in [0, 1], got {v}")
+        for key in ("clip_epsilon", "clip_value", "critic_coeff", "entropy_coeff"):
+            v = getattr(self, key)
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"{key} must be >= 0 and finite, got {v}")
+        if self.clip_epsilon <= 0:
+            raise ValueError(f"clip_epsilon must be > 0, got {self.clip_epsilon}")
+        if isinstance(self.kl_stop, dict):
+            if "default" not in self.kl_stop:
+                raise ValueError(
+                    f"kl_stop: a mapping needs a 'default' entry, got keys {sorted(self.kl_stop)}"
+                )
+            for name, v in self.kl_stop.items():
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    raise ValueError(f"kl_stop.{name}: expected a number, got {v!r}")
+        if self.collector == "multi" and self.num_envs % self.workers:
+            raise ValueError(
+                f"collector 'multi': workers ({self.workers}) must divide num_envs "
+                f"({self.num_envs})"
+            )
+        frames = self.num_envs * self.steps_per_env
+        if self.minibatch_size > frames:
+            raise ValueError(
+                f"minibatch_size ({self.minibatch_size}) exceeds the frames per iteration "
+                f"(num_envs x steps_per_env = {frames})"
+            )

@@ -1,0 +1,121 @@
+"""Which robot an environment runs next: PPO's sampling against "the rich get richer".
+
+A robot that learns to walk gets long episodes, so with a fixed robot per environment it would
+also get most of the data. :class:`RobotSampler` counters that: for the first
+``uniform_iterations`` iterations every robot is equally likely; afterwards robot i is drawn with
+probability proportional to ``1000 / ema_i``, where ``ema_i`` is the mean of robot i's first
+``warmup_episodes`` episode lengths, then ``ema_i <- alpha * length + (1 - alpha) * ema_i`` per
+episode. A robot with fewer episodes uses the mean of those it has; one with none, the mean of
+the others' (no evidence either way).
+
+The probabilities live in a shared-memory tensor; :meth:`RobotSampler.drawer` gives the env a
+small picklable callable (:class:`RobotDraw`, its own random stream) that reads them, so envs in
+worker processes (a multi-process collector) follow the updates made in the trainer process.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+class RobotDraw:
+    """Draws one robot index per reset sub-env from the shared probabilities (env side)."""
+
+    def __init__(self, probs: torch.Tensor, seed: int):
+        self.probs = probs
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, rows: np.ndarray) -> np.ndarray:
+        p = self.probs.numpy().astype(np.float64)
+        return self.rng.choice(len(p), size=len(rows), p=p / p.sum())
+
+
+class RobotSampler:
+    """Robot probabilities from episode lengths (trainer side)."""
+
+    def __init__(
+        self,
+        num_robots: int,
+        *,
+        uniform_iterations: int = 30,
+        warmup_episodes: int = 10,
+        alpha: float = 0.1,
+        weight: float = 1000.0,
+        probs: torch.Tensor | None = None,
+    ):
+        self.num_robots = num_robots
+        self.uniform_iterations = uniform_iterations
+        self.warmup_episodes = warmup_episodes
+        self.alpha, self.weight = alpha, weight
+        #: the current probabilities (shared memory; ``probs``: share an existing tensor)
+        self.probs = self.uniform_probs(num_robots) if probs is None else probs
+        if self.probs.shape != (num_robots,):
+            raise ValueError(f"probs must have shape ({num_robots},), got {tuple(self.probs.shape)}")
+        self.episodes = np.zeros(num_robots, np.int64)
+        self.ema = np.zeros(num_robots)  # the warm-up mean until warmup_episodes episodes
+        self.iteration = 0
+
+    @staticmethod
+    def uniform_probs(num_robots: int) -> torch.Tensor:
+        """Uniform probabilities in shared memory (readable by worker processes)."""
+        return torch.full((num_robots,), 1.0 / num_robots, dtype=torch.float64).share_memory_()
+
+    def drawer(self, seed: int) -> RobotDraw:
+        return RobotDraw(self.probs, seed)
+
+    def add_episodes(self, robots, lengths) -> None:
+        """Record finished episodes: robot indices and their lengths (in steps)."""
+        for i, n in zip(np.asarray(robots).tolist(), np.asarray(lengths).tolist(), strict=True):
+            k = self.episodes[i]
+            if k < self.warmup_episodes:
+                self.ema[i] = (self.ema[i] * k + n) / (k + 1)
+            else:
+                self.ema[i] = self.alpha * n + (1 - self.alpha) * self.ema[i]
+            self.episodes[i] = k + 1
+
+    def end_iteration(self) -> None:
+        """Count an iteration; past the uniform phase, set the probabilities from the EMAs."""
+        self.iteration += 1
+        if self.iteration >= self.uniform_iterations:
+            self.probs.copy_(torch.from_numpy(self.target_probs()))
+
+    def target_probs(self) -> np.ndarray:
+        """p_i proportional to weight / ema_i (robots without episodes get the mean EMA)."""
+        seen = self.episodes > 0
+        if not seen.any():
+            return np.full(self.num_robots, 1.0 / self.num_robots)
+        ema = np.where(seen, self.ema, self.ema[seen].mean())
+        w = self.weight / np.maximum(ema, 1.0)
+        return w / w.sum()
+
+    def stats(self) -> dict[str, float]:
+        """The spread of the current probabilities (logged)."""
+        p = self.probs.numpy()
+        entropy = float(-(p * np.log(np.maximum(p, 1e-12))).sum())
+        return {
+            "robot_p_min": float(p.min()),
+            "robot_p_max": float(p.max()),
+            # 1.0: uniform
+            "robot_p_entropy_ratio": entropy / np.log(self.num_robots) if self.num_robots > 1
+            else 1.0,
+        }
+
+    def state_dict(self) -> dict:
+        return {
+            "probs": self.probs.clone(),
+            "episodes": self.episodes.copy(),
+            "ema": self.ema.copy(),
+            "iteration": self.iteration,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        if len(state["episodes"]) != self.num_robots:
+            raise ValueError(
+                f"the checkpoint's robot sampler has {len(state['episodes'])} robots, the run "
+                f"{self.num_robots}"
+            )
+        self.probs.copy_(state["probs"])
+        self.episodes[:] = state["episodes"]
+        self.ema[:] = state["ema"]
+        self.iteration = int(state["iteration"])
