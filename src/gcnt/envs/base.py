@@ -893,7 +893,7 @@ class BatchedMujocoEnv(EnvBase):
                 f"(build the env with max_limbs = the largest pool robot)"
             )
         known = {_robot_key(s.robot): s.model for s in self._sims if not s.rules.edits_model}
-        self._pool_models = [known.get(_robot_key(r)) or r.compile() for r in pool]
+        self._pool_models = [known.get(_robot_key(r)) or self.compile_model(r) for r in pool]
         context = None
         f = self._featurizer
         if f.context_dim > 0:
@@ -925,7 +925,7 @@ class BatchedMujocoEnv(EnvBase):
             dt = float(model.opt.timestep) * self.frame_skip
             rules = self.rules_factory(r, model, dt)
             if rules.edits_model:  # a private model, as at construction
-                model = r.compile()
+                model = self.compile_model(r)
                 rules = self.rules_factory(r, model, dt)
             data = mujoco.MjData(model)
             self._sims[i] = _Sim(i, r, model, data, rules, slice(0, 0), data.ctrl,
