@@ -53,7 +53,9 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ("gcnt.morphology.robot", ("RobotFileError",)),
         ("gcnt.morphology.benchmarks", ("UnknownRobotError", "BenchmarkFileError")),
         ("gcnt.envs.robot_table", ("RobotTooLargeError",)),
-        ("gcnt.rl.run_dir", ("CheckpointError",)),
+        ("gcnt.rl.run_dir", ("CheckpointError", "RunDirError")),
+        ("gcnt.rl.loop", ("TrainingDivergedError",)),
+        ("gcnt.rl.evaluate", ("PolicyMismatchError",)),
     ):
         mod = sys.modules.get(module)
         errors += [getattr(mod, n) for n in names if mod is not None and hasattr(mod, n)]
@@ -116,8 +118,13 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:
         if args.verbose or not isinstance(e, _user_errors()):
             raise
-        print(f"gcnt {args.command}: error: {e}", file=sys.stderr)
+        print(f"gcnt {args.command}: error: {_one_line(str(e))}", file=sys.stderr)
         return 2
+
+
+def _one_line(message: str) -> str:
+    """A message in one line (MuJoCo's and parsers' messages span several)."""
+    return "; ".join(line.strip() for line in message.splitlines() if line.strip())
 
 
 if __name__ == "__main__":

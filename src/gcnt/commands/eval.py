@@ -42,8 +42,9 @@ def _label(specs: list[str]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError
-    from gcnt.rl.evaluate import evaluate, format_table, write_eval
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
+    from gcnt.rl.loop import check_network
+    from gcnt.rl.run_dir import CheckpointError, RunDir
 
     episodes = args.episodes if args.episodes is not None else (32 if args.stochastic else 100)
     if episodes < 1:
@@ -62,12 +63,16 @@ def run(args: argparse.Namespace) -> int:
         raise RecipeError(
             "no robots to evaluate (the recipe has no test robots; pass --robots ...)"
         )
+    check_network(recipe)
     state = run_dir.load_checkpoint()
     policy = state.get("policy") or {"actor": state["actor"]}  # "actor": checkpoints before 0.2
     deterministic = not args.stochastic
-    results = evaluate(
-        recipe, policy, specs, episodes=episodes, seed=args.seed, deterministic=deterministic
-    )
+    try:
+        results = evaluate(
+            recipe, policy, specs, episodes=episodes, seed=args.seed, deterministic=deterministic
+        )
+    except PolicyMismatchError as e:
+        raise CheckpointError(f"{run_dir.checkpoint_path}: {e}") from None
     print(format_table(results))
     meta = {
         "robots_spec": args.robots,

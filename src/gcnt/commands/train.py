@@ -41,6 +41,10 @@ def run(args: argparse.Namespace) -> int:
     prepared = prepare(recipe)
     if not args.resume:
         run_dir.create(recipe)
+    elif not resume:
+        aside = run_dir.set_aside_metrics()  # rows of the killed attempt, kept but not mixed in
+        if aside is not None:
+            log.info("metrics of the attempt without a checkpoint moved to %s", aside)
     train(recipe, run_dir, resume=resume, prepared=prepared)
     print(f"run directory: {run_dir.path}")
     return 0

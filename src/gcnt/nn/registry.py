@@ -67,6 +67,9 @@ class NetworkEntry:
     #: config fields this name fixes (an ablation is an entry with a switch off)
     fixed: Mapping[str, Any] = field(default_factory=dict)
     description: str = ""
+    #: its input size is fixed by the padded limb count it was built for (SR's flat MLP): it
+    #: cannot run robots with more limbs than the table it was trained on
+    fixed_limbs: bool = False
 
 
 NETWORKS: dict[str, NetworkEntry] = {}
@@ -80,6 +83,7 @@ def register_network(
     fixed: Mapping[str, Any] | None = None,
     description: str = "",
     replace: bool = False,
+    fixed_limbs: bool = False,
 ) -> NetworkEntry:
     """Make method ``name`` available to :func:`make_network` (``replace`` to redefine one).
 
@@ -94,7 +98,7 @@ def register_network(
         raise ValueError(f"network {name!r} is already registered (pass replace=True)")
     fixed = dict(fixed or {})
     config.check_overrides(fixed)
-    entry = NetworkEntry(config, build, fixed, description)
+    entry = NetworkEntry(config, build, fixed, description, fixed_limbs)
     NETWORKS[name] = entry
     return entry
 
@@ -125,8 +129,12 @@ register_network(
     description="MetaMorph*",
 )
 register_network("modumorph", ModuMorphConfig, modumorph_backbone, description="ModuMorph")
-register_network("sr", MLPConfig, mlp_backbone, description="SR (one MLP per robot)")
-register_network("mlp", MLPConfig, mlp_backbone, description="SR (one MLP per robot)")
+register_network(
+    "sr", MLPConfig, mlp_backbone, description="SR (one MLP per robot)", fixed_limbs=True
+)
+register_network(
+    "mlp", MLPConfig, mlp_backbone, description="SR (one MLP per robot)", fixed_limbs=True
+)
 
 
 def make_config(name: str, preset: str = "smpenv", **overrides: Any) -> NetConfig:

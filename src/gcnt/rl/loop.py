@@ -12,6 +12,7 @@ Every collected environment step is counted (``env_steps``), over all robots.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import defaultdict
 from dataclasses import dataclass
@@ -26,13 +27,35 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt.morphology import Robot
-from gcnt.recipes import Recipe
+from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.algorithm import Algorithm, get_algorithm
-from gcnt.rl.evaluate import evaluate, render_policy, write_eval
-from gcnt.rl.factories import train_robots
-from gcnt.rl.run_dir import RunDir, make_logger, seed_everything, set_rng_state
+from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
+from gcnt.rl.factories import benchmark_of, train_robots
+from gcnt.rl.run_dir import (
+    CheckpointError,
+    RunDir,
+    check_logger,
+    make_logger,
+    seed_everything,
+    set_rng_state,
+)
 
 log = logging.getLogger(__name__)
+
+
+class TrainingDivergedError(FloatingPointError):
+    """Losses or weights turned NaN or infinite; the last good checkpoint is kept."""
+
+
+def check_network(recipe: Recipe) -> None:
+    """The recipe's network name, preset and ``network.kwargs``: a RecipeError naming them."""
+    from gcnt.nn.registry import make_config
+
+    net = recipe.network
+    try:
+        make_config(net.name, net.preset or benchmark_of(recipe).preset, **net.kwargs)
+    except (ValueError, TypeError) as e:
+        raise RecipeError(f"network: {e}") from None
 
 
 class TrainStats:
@@ -88,8 +111,11 @@ class Prepared:
 def prepare(recipe: Recipe) -> Prepared:
     """Seed, then build the robots, the benchmark's env and the algorithm (bad input fails
     here, before anything is written); the derived sizes go to ``recipe.resolved``."""
+    check_logger(recipe)
+    check_network(recipe)
     seed_everything(recipe.seed)
     robots = train_robots(recipe)
+    check_eval_robots(recipe, _eval_specs(recipe))  # evaluated at the end: check them first
     algo_cls = get_algorithm(recipe.algo)
     env = algo_cls.make_train_env(recipe, robots)
     try:
@@ -110,18 +136,25 @@ def train(
     """
     prepared = prepared or prepare(recipe)
     robots, env, algo = prepared.robots, prepared.env, prepared.algo
-    run.save_recipe(recipe)
 
     env_steps = 0
     if resume:
         state = run.load_checkpoint(map_location=recipe.device)
-        algo.load_state_dict(state["learner"])
+        try:
+            algo.load_state_dict(state["learner"])
+        except (ValueError, RuntimeError, KeyError) as e:
+            raise CheckpointError(
+                f"{run.checkpoint_path} does not fit the recipe's networks (was the recipe "
+                f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
+            ) from None
         env_steps = state["env_steps"]
         set_rng_state(state["rng"])
         if state.get("has_buffers"):
             algo.load_buffers(run.buffers_dir)
         run.truncate_metrics(env_steps)
         log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, algo.updates)
+    run.save_recipe(recipe)  # after the checkpoint was found to fit it
+    if resume:
         env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume
     total = recipe.collector.total_frames
     next_log = _next_multiple(env_steps, recipe.logger.log_interval)
@@ -156,6 +189,10 @@ def train(
                     stats.add_episodes(data)
                     for losses in algo.process(data, env_steps):
                         stats.add_losses(losses)
+                        _check_losses(run, losses, env_steps, algo.updates)
+                    bad = _non_finite(algo.policy_state())  # before it acts again
+                    if bad:
+                        raise _diverged(run, f"non-finite policy weights in {bad}", env_steps)
                     if multi:
                         collector.update_policy_weights_()
 
@@ -204,16 +241,31 @@ def _log_row(run: RunDir, logger, row: dict) -> None:
     )
 
 
+def _diverged(run: RunDir, what: str, env_steps: int) -> TrainingDivergedError:
+    kept = (
+        f"the last good checkpoint ({run.checkpoint_path}) was kept"
+        if run.has_checkpoint()
+        else "no checkpoint had been written yet"
+    )
+    return TrainingDivergedError(
+        f"training diverged at {env_steps} env steps: {what}; stopped, {kept}. Lower the "
+        "learning rate or clip the gradients, and train again"
+    )
+
+
+def _check_losses(run: RunDir, losses: dict, env_steps: int, updates: int) -> None:
+    """Stop at the first update whose losses are NaN or infinite."""
+    for key, value in losses.items():
+        if not math.isfinite(float(value)):
+            raise _diverged(run, f"{key} is {float(value)} at update {updates}", env_steps)
+
+
 def _checkpoint(run: RunDir, algo: Algorithm, env_steps: int) -> None:
     """Write the checkpoint, unless the weights went non-finite (the last good one stays)."""
     learner = algo.state_dict()
     bad = _non_finite(learner)
     if bad:
-        raise FloatingPointError(
-            f"training diverged at {env_steps} env steps: non-finite values in {bad}; the last "
-            f"good checkpoint ({run.checkpoint_path}) was kept. Lower the learning rate or "
-            f"enable gradient clipping, then `gcnt train --resume {run.path}`"
-        )
+        raise _diverged(run, f"non-finite values in {bad}", env_steps)
     has_buffers = algo.buffers_state(run.buffers_dir)
     run.save_checkpoint(
         {
@@ -245,8 +297,12 @@ def _non_finite(state, prefix: str = "") -> str | None:
     return None
 
 
+def _eval_specs(recipe: Recipe) -> list[str]:
+    return recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
+
+
 def _evaluate(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int) -> None:
-    specs = recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
+    specs = _eval_specs(recipe)
     if recipe.eval.episodes <= 0 or not specs:
         return
     policy = algo.policy_state()

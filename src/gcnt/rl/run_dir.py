@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from gcnt.recipes import Recipe, load_recipe, save_recipe
+from gcnt.recipes import Recipe, RecipeError, load_recipe, save_recipe
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +28,10 @@ CHECKPOINT = "checkpoints/last.pt"
 
 class CheckpointError(ValueError):
     """A checkpoint that is missing, unreadable or does not fit the run's networks."""
+
+
+class RunDirError(ValueError):
+    """A run directory that cannot be made or written (a file in the way, no permission)."""
 
 
 class RunDir:
@@ -71,8 +75,14 @@ class RunDir:
                 f"{self.path} already holds a run; continue it with `gcnt train --resume "
                 f"{self.path}` or choose another run_dir=..."
             )
-        (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
-        self.save_recipe(recipe)
+        try:
+            (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
+            self.save_recipe(recipe)
+        except OSError as e:
+            raise RunDirError(
+                f"run_dir {self.path}: cannot create the run directory ({e.strerror or e}"
+                f"{': ' + str(e.filename) if e.filename else ''})"
+            ) from None
 
     def save_recipe(self, recipe: Recipe) -> None:
         """Write the resolved recipe (atomically: a killed run keeps the previous file)."""
@@ -97,6 +107,17 @@ class RunDir:
             return []
         return [json.loads(line) for line in self.metrics_path.read_text().splitlines() if line]
 
+    def set_aside_metrics(self) -> Path | None:
+        """Rename the metrics of a run restarted from scratch (killed before its first
+        checkpoint) to ``metrics.restartN.jsonl``, so that nothing logged is lost or mixed in."""
+        if not self.metrics_path.exists():
+            return None
+        n = 1
+        while (aside := self.path / f"metrics.restart{n}.jsonl").exists():
+            n += 1
+        os.replace(self.metrics_path, aside)
+        return aside
+
     def truncate_metrics(self, env_steps: int) -> None:
         """Drop lines logged after the checkpoint a resumed run starts from."""
         rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
@@ -109,6 +130,7 @@ class RunDir:
         """Atomic write: a run killed while saving keeps its previous checkpoint."""
         state = {**state, "rng": rng_state()}
         tmp = self.checkpoint_path.with_suffix(".tmp")
+        tmp.parent.mkdir(parents=True, exist_ok=True)
         torch.save(state, tmp)
         os.replace(tmp, self.checkpoint_path)
         log.debug("checkpoint at %s env steps", state.get("env_steps"))
@@ -150,6 +172,25 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed)
     random.seed(seed)
+
+
+def check_logger(recipe: Recipe) -> None:
+    """W&B online logging needs credentials: a RecipeError before a run starts, not W&B's
+    traceback after its directory exists."""
+    cfg = recipe.logger
+    if cfg.backend != "wandb" or cfg.mode != "online":
+        return
+    import wandb
+
+    try:
+        ok = wandb.login(verify=False, prompt=False)
+    except Exception as e:  # an API key of a malformed shape
+        raise RecipeError(f"logger.mode=online: W&B cannot log in ({e})") from None
+    if not ok:
+        raise RecipeError(
+            "logger.mode=online but W&B has no API key: run `wandb login` or set WANDB_API_KEY, "
+            "or log offline (logger.mode=offline) and `wandb sync` later"
+        )
 
 
 def make_logger(recipe: Recipe, run: RunDir):
