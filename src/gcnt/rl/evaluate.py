@@ -24,10 +24,6 @@ from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.factories import base_env, make_env
 
 
-class PolicyMismatchError(ValueError):
-    """A checkpoint's policy weights that do not fit the network its recipe builds."""
-
-
 def eval_robots(specs: Sequence[str]) -> list[Robot]:
     """The robots of ``specs``, each once (a robot named twice is evaluated once)."""
     robots: dict[str, Robot] = {}
@@ -38,30 +34,9 @@ def eval_robots(specs: Sequence[str]) -> list[Robot]:
 
 
 def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
-    """Pad at least as much as in training: size-dependent networks (the per-robot MLP) need it,
-    and cannot take a robot with more limbs (a RobotTooLargeError naming it)."""
-    from gcnt.envs.robot_table import RobotTooLargeError
-    from gcnt.nn.registry import NETWORKS
-
+    """Pad at least as much as in training: size-dependent networks (the per-robot MLP) need it."""
     train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
-    big = max(robots, key=lambda r: r.num_limbs)
-    entry = NETWORKS.get(recipe.network.name)
-    if big.num_limbs > train_k and entry is not None and entry.fixed_limbs:
-        raise RobotTooLargeError(
-            f"robot {big.name!r} has {big.num_limbs} limbs; network {recipe.network.name!r} "
-            f"was built for at most {train_k} (its input size is fixed by the training robots' "
-            "padding, env.max_limbs): it cannot be evaluated on larger robots"
-        )
-    return max(train_k, big.num_limbs)
-
-
-def check_eval_robots(recipe: Recipe, specs: Sequence[str]) -> list[Robot]:
-    """The robots of ``specs`` if the recipe's policy can be evaluated on them (else the error
-    that evaluating would raise, before anything runs)."""
-    robots = eval_robots(specs)
-    if robots:
-        _pad(recipe, robots)
-    return robots
+    return max(train_k, *(r.num_limbs for r in robots))
 
 
 @torch.no_grad()
@@ -87,18 +62,9 @@ def evaluate(
     copies = max(1, min(parallel, episodes))
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
     env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
-    try:
-        actor = get_algorithm(recipe.algo).eval_policy(
-            recipe, policy_state, env, deterministic=deterministic
-        )
-    except (ValueError, RuntimeError, KeyError) as e:
-        env.close()
-        if type(e) in (ValueError, RuntimeError, KeyError):  # not a named error of its own
-            raise PolicyMismatchError(
-                "the checkpoint's policy does not fit the recipe's network (was the recipe "
-                f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
-            ) from None
-        raise
+    actor = get_algorithm(recipe.algo).eval_policy(
+        recipe, policy_state, env, deterministic=deterministic
+    )
 
     n_env = env.batch_size[0]
     target = torch.tensor([quota[i % copies] for i in range(n_env)])
@@ -149,7 +115,10 @@ def write_eval(
     """Write results as ``{"env_steps", **meta, "robots": {name: summary}}`` (atomically)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"env_steps": env_steps, **(meta or {}), "robots": results}, indent=1))
+    out = {"env_steps": env_steps, **(meta or {}), "robots": results}
+    if results:
+        out["over_robots"] = summarize_robots(results)
+    tmp.write_text(json.dumps(out, indent=1))
     tmp.replace(path)
     return path
 
@@ -159,4 +128,28 @@ def format_table(results: dict[str, dict]) -> str:
     lines = [f"{'robot':<{width}}  {'return':>10}  {'± s.e.':>8}  episodes"]
     for name, r in results.items():
         lines.append(f"{name:<{width}}  {r['mean']:>10.1f}  {r['stderr']:>8.1f}  {r['episodes']}")
+    if len(results) > 1:
+        s = summarize_robots(results)
+        lines.append(
+            f"{'mean over ' + str(s['robots']) + ' robots':<{width}}  {s['mean']:>10.1f}  "
+            f"95% CI [{s['ci95_low']:.1f}, {s['ci95_high']:.1f}] (bootstrap over robots)"
+        )
     return "\n".join(lines)
+
+
+def summarize_robots(results: dict[str, dict], *, resamples: int = 2000, seed: int = 0) -> dict:
+    """The mean over robots of their mean returns, with a 95% bootstrap confidence interval
+    (percentile method, resampling robots; one robot: the interval is its mean)."""
+    from scipy.stats import bootstrap
+
+    x = np.array([r["mean"] for r in results.values()], dtype=np.float64)
+    mean = float(x.mean())
+    if len(x) < 2 or np.all(x == x[0]):
+        low = high = mean
+    else:
+        ci = bootstrap(
+            (x,), np.mean, confidence_level=0.95, n_resamples=resamples, method="percentile",
+            random_state=np.random.default_rng(seed),
+        ).confidence_interval
+        low, high = float(ci.low), float(ci.high)
+    return {"mean": mean, "ci95_low": low, "ci95_high": high, "robots": len(x)}

@@ -90,6 +90,21 @@ def lr_factor(iteration: int, total: int, config: PPOConfig) -> float:
     return f
 
 
+def make_gae(config: PPOConfig, critic: TensorDictModuleBase) -> GAE:
+    """GAE(gamma, lambda) over a batch [N, T] (time last): ``terminated`` cuts the bootstrap,
+    ``done`` the trace, so a time limit (truncated, not terminated) bootstraps with V(s')."""
+    return GAE(
+        gamma=config.gamma,
+        lmbda=config.gae_lambda,
+        value_network=critic,
+        average_gae=False,
+        # shifted=True (one critic call) is wrong across resets inside a batch in torchrl 0.14:
+        # it takes V(s_t) of a new episode's first state from the previous episode's last obs
+        shifted=False,
+        deactivate_vmap=True,  # the graph lookup checks ids in Python
+    )
+
+
 class PPOLearner:
     """Networks, normalisation, loss, GAE, optimiser and one iteration's update (no env)."""
 
@@ -112,8 +127,7 @@ class PPOLearner:
             clip_value=o.clip_value if o.clip_value > 0 else None,
             functional=False,
         )
-        self.gae = GAE(gamma=o.gamma, lmbda=o.gae_lambda, value_network=self.critic,
-                       average_gae=False, shifted=True)
+        self.gae = make_gae(o, self.critic)
         self.params = [
             p for net in (self.actor, self.critic) for p in net.parameters() if p.requires_grad
         ]

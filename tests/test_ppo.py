@@ -1,0 +1,301 @@
+"""PPO pipeline: training through `gcnt train` on SMPENV and UNIMAL (tiny), the KL early stop,
+the learning-rate schedule, observation statistics (frozen at evaluation, restored from a
+checkpoint), exact continuation from a checkpointed state, robot sampling and slot envs, and GAE
+with bootstrapped timeouts (by hand, float64)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+
+from gcnt.cli import main as gcnt
+from gcnt.envs.smpenv import SMPEnv
+from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.recipes import recipe_from_dict
+from gcnt.rl.evaluate import summarize_robots
+from gcnt.rl.loop import prepare
+from gcnt.rl.normalize import ObsNormalizer, RewardScaler
+from gcnt.rl.ppo import PPO, NormalizedPolicy, lr_factor, make_gae
+from gcnt.rl.ppo_config import PPOConfig
+from gcnt.rl.robot_sampler import RobotDraw, RobotSampler
+from gcnt.rl.run_dir import RunDir
+
+TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
+
+
+def tiny_recipe(run_dir, benchmark="smpenv", **ppo):
+    robots = ["Hopper++:train"] if benchmark == "smpenv" else ["unimal_0000", "unimal_0001"]
+    cfg = {"num_envs": 4, "steps_per_env": 20, "minibatch_size": 40, "epochs": 2,
+           "uniform_iterations": 1, **ppo}
+    return recipe_from_dict(
+        {
+            "algo": "ppo",
+            "task": "tiny",
+            "run_dir": str(run_dir),
+            "env": {"benchmark": benchmark, "robots": robots, "max_episode_steps": 15,
+                    "num_threads": 1, **({"world": "ft"} if benchmark == "unimal" else {})},
+            "collector": {"total_frames": 240},
+            "network": {"kwargs": TINY_NET},
+            "ppo": cfg,
+            "logger": {"backend": "none", "progress": False, "log_interval": 80},
+            "eval": {"episodes": 1, "deterministic": False},
+            "checkpoint_interval": 80,
+        }
+    )
+
+
+@torch.no_grad()
+def rollout(prep, steps=20):
+    """One iteration's data [N, T] as the collector gathers it (sampled actions)."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    with set_exploration_type(ExplorationType.RANDOM):
+        return prep.env.rollout(steps, prep.algo.policy(), break_when_any_done=False)
+
+
+def yaml_recipe(tmp_path, benchmark):
+    import yaml
+
+    path = tmp_path / "r.yaml"
+    path.write_text(yaml.safe_dump(tiny_recipe(tmp_path / "run", benchmark).to_dict()))
+    return path
+
+
+@pytest.mark.parametrize("benchmark", ["smpenv", "unimal"])
+def test_ppo_trains_through_gcnt_train(benchmark, tmp_path, capsys):
+    path = yaml_recipe(tmp_path, benchmark)
+    assert gcnt(["train", str(path)]) == 0
+    run = RunDir(tmp_path / "run")
+    rows = run.read_metrics()
+    assert rows[-1]["env_steps"] >= 240 and rows[-1]["updates"] > 0
+    for key in ("approx_kl", "clip_fraction", "explained_variance", "entropy", "lr",
+                "loss_critic", "loss_policy", "robot_p_min", "robot_p_max", "update_s"):
+        assert any(key in r for r in rows), key
+    assert any(k.startswith("train_return/") for r in rows for k in r)
+    resolved = run.load_recipe().resolved
+    assert resolved["frames_per_batch"] == 80 and resolved["iterations"] == 3
+    evals = sorted((run.path / "eval").glob("step*.json"))
+    assert evals and json.loads(evals[-1].read_text())["deterministic"] is False
+    # ModuMorph's protocol on the trained run: sampled actions, frozen statistics, CI over robots
+    out_path = tmp_path / "eval.json"
+    assert gcnt(["eval", str(run.path), "--robots", "train", "--stochastic", "--episodes", "2",
+                 "--json", str(out_path)]) == 0
+    assert "95% CI" in capsys.readouterr().out
+    out = json.loads(out_path.read_text())
+    assert out["deterministic"] is False
+    assert {"mean", "ci95_low", "ci95_high"} <= set(out["over_robots"])
+
+
+def test_kl_stop_is_checked_before_each_step_and_skips_the_rest_of_the_iteration(tmp_path):
+    recipe = tiny_recipe(tmp_path, kl_stop={"default": 0.5, "gcnt": 0.05})
+    prep = prepare(recipe)
+    algo = prep.algo
+    assert algo.learner.kl_stop == 0.05  # the method's own threshold
+    data = rollout(prep)
+    # 2 epochs x 2 mini-batches; the 3rd mini-batch (epoch 1, step 0) reports a KL over 0.05
+    kls = iter([0.0, 0.01, 0.2, 0.0])
+    real = algo.learner.loss
+
+    def scripted(batch):
+        out = real(batch)
+        out.set("kl_approx", torch.tensor(next(kls)))
+        return out
+
+    algo.learner.loss = scripted
+    before = {k: v.clone() for k, v in algo.learner.actor.state_dict().items()}
+    losses = list(algo.learner.learn(data))
+    assert len(losses) == 2 and algo.learner.updates == 2  # no step on the 3rd, no 4th
+    assert algo.learner.stopped_at == (1, 0)
+    assert algo.learner.iteration == 1
+    after = algo.learner.actor.state_dict()
+    assert any(not torch.equal(before[k], after[k]) for k in before if before[k].is_floating_point())
+    prep.env.close()
+
+
+def test_lr_schedule_warms_up_then_follows_the_cosine():
+    c = PPOConfig()
+    total = 100
+    assert lr_factor(0, total, c) == pytest.approx(0.1)
+    for it in range(1, 5):
+        warm = 0.1 + 0.9 * it / 5
+        assert lr_factor(it, total, c) == pytest.approx(warm * 0.5 * (1 + math.cos(math.pi * it / total)))
+    for it in (5, 50, 99):
+        assert lr_factor(it, total, c) == pytest.approx(0.5 * (1 + math.cos(math.pi * it / total)))
+    assert lr_factor(total, total, c) == pytest.approx(0.0)
+    assert lr_factor(3, total, PPOConfig(lr_schedule="constant", warmup_iterations=0)) == 1.0
+
+
+def test_obs_normalizer_per_slot_over_real_limbs_and_frozen_copy():
+    torch.manual_seed(0)
+    norm = ObsNormalizer(3, 2, clip=10.0)
+    obs = torch.randn(50, 3, 2, dtype=torch.float64) * torch.tensor([1.0, 5.0]) + 3.0
+    mask = torch.ones(50, 3, dtype=torch.bool)
+    mask[:, 2] = False  # nobody has a third limb
+    mask[25:, 1] = False
+    norm.update(obs[:20], mask[:20])
+    norm.update(obs[20:], mask[20:])  # two merges equal one pass over everything
+    ref0 = obs[:, 0]
+    assert torch.allclose(norm.mean[0], ref0.mean(0), atol=1e-3)
+    assert torch.allclose(norm.var[0], ref0.var(0, correction=0), rtol=1e-3)
+    assert torch.allclose(norm.mean[1], obs[:25, 1].mean(0), atol=1e-3)
+    assert torch.equal(norm.mean[2], torch.zeros(2)) and torch.equal(norm.var[2], torch.ones(2))
+    y = norm(obs.float(), mask)
+    assert (y[~mask] == 0).all() and y.abs().max() <= 10
+    wide = norm.for_limbs(5)
+    assert torch.equal(wide.mean[:3], norm.mean) and torch.equal(wide.var[3:], torch.ones(2, 2))
+
+
+def test_reward_scaling_divides_by_the_std_of_the_discounted_return():
+    s = RewardScaler(2, gamma=0.5, clip=10.0)
+    r = torch.tensor([[1.0, 1.0, 1.0], [2.0, 0.0, 2.0]])
+    done = torch.tensor([[False, True, False], [False, False, False]])
+    out = s(r, done)
+    rets = np.array([[1.0, 1.5, 1.0], [2.0, 1.0, 2.5]])
+    n0 = 1e-4
+    mean = rets.mean() * 6 / (6 + n0)
+    var = (1.0 * n0 + rets.var() * 6 + rets.mean() ** 2 * n0 * 6 / (6 + n0)) / (6 + n0)
+    assert s.mean == pytest.approx(mean) and s.var == pytest.approx(var)
+    assert torch.allclose(out, (r / math.sqrt(var + 1e-8)).float())
+    assert s.ret.tolist() == [1.0, 2.5]  # carried to the next batch (robot 0 restarted)
+
+
+def test_robot_sampler_uniform_then_inverse_episode_length():
+    s = RobotSampler(3, uniform_iterations=2, warmup_episodes=10, alpha=0.1)
+    draw = s.drawer(seed=0)
+    s.add_episodes([0] * 10 + [1] * 10, [100] * 10 + [400] * 10)
+    s.end_iteration()
+    assert np.allclose(s.probs.numpy(), 1 / 3)  # still uniform in the first iterations
+    s.add_episodes([0, 1], [200, 400])  # past the warm-up: EMA
+    s.end_iteration()
+    ema = np.array([0.1 * 200 + 0.9 * 100, 400.0, (110 + 400) / 2])  # robot 2: mean of the others
+    w = 1000 / ema
+    assert np.allclose(s.probs.numpy(), w / w.sum())
+    assert np.allclose(s.ema[:2], ema[:2])
+    # the env-side drawer reads the same (shared) probabilities
+    picks = draw(np.arange(20000))
+    assert np.allclose(np.bincount(picks, minlength=3) / 20000, w / w.sum(), atol=0.015)
+    # first episodes: the mean of those seen so far
+    t = RobotSampler(1, warmup_episodes=10)
+    t.add_episodes([0, 0, 0], [10, 20, 60])
+    assert t.ema[0] == pytest.approx(30.0)
+
+
+def test_slot_env_changes_robot_at_reset_and_matches_a_fresh_env():
+    pool = resolve_robots(["Hopper++:train"]) + resolve_robots(["walker_2_main"])
+    k = max(r.num_limbs for r in pool)
+    env = SMPEnv([pool[0], pool[1]], max_limbs=k, seed=0, num_threads=1)
+    order = iter([[3, 2], [1], [0, 3]])
+    env.use_robot_pool(pool, lambda rows: np.array(next(order)[: len(rows)]))
+    assert env.table.batch_size[0] == len(pool)
+    td = env.reset()
+    assert td["morph_id"].tolist() == [3, 2] and [r.name for r in env.robots] == [
+        pool[3].name, pool[2].name]
+    env.reset(td.clone().set("_reset", torch.tensor([[False], [True]])))
+    td = env.observe()
+    assert td["morph_id"].tolist() == [3, 1]
+    assert torch.equal(td["limbs", "mask"][1], env.table["limbs", "mask"][1])
+    # the observation of a reassigned slot is the robot's own
+    model, data = env.sim(1)
+    ref = SMPEnv([pool[1]], max_limbs=k, seed=0, num_threads=1)
+    ref.reset()
+    ref.set_state(0, data.qpos.copy(), data.qvel.copy())
+    env.set_state(1, data.qpos.copy(), data.qvel.copy())
+    assert torch.equal(ref.observe()["limbs", "obs"][0], env.observe()["limbs", "obs"][1])
+    out = env.step(td.update(env.full_action_spec.rand()))
+    assert out["next", "morph_id"].tolist() == [3, 1]
+    with pytest.raises(ValueError, match="pool index"):
+        env._reassign(np.array([0]), np.array([9]))
+
+
+def test_timeouts_bootstrap_in_the_advantage_by_hand():
+    """r + gamma V(s') at a truncation, r alone at a termination, traces cut at both."""
+    c = PPOConfig(gamma=0.9, gae_lambda=0.8)
+    critic = TensorDictModule(lambda x: x.sum(-1, keepdim=True), in_keys=["x"],
+                              out_keys=["state_value"])
+    t_len = 5
+    x = torch.arange(t_len, dtype=torch.float64).reshape(1, t_len, 1) + 1.0
+    # next obs = the following obs, except at the episode ends (t = 1 timeout, t = 3 fall),
+    # where the env restarted: the next row is a fresh start
+    nxt = torch.tensor([2.0, 30.0, 4.0, 50.0, 60.0], dtype=torch.float64).reshape(1, t_len, 1)
+    reward = torch.tensor([1.0, 2.0, 3.0, 4.0, 5.0], dtype=torch.float64).reshape(1, t_len, 1)
+    trunc = torch.tensor([False, True, False, False, False]).reshape(1, t_len, 1)
+    term = torch.tensor([False, False, False, True, False]).reshape(1, t_len, 1)
+    td = TensorDict(
+        {"x": x, "next": {"x": nxt, "reward": reward, "terminated": term,
+                          "truncated": trunc, "done": term | trunc}},
+        [1, t_len],
+    )
+    make_gae(c, critic)(td)
+    v, v1 = x.squeeze().tolist(), nxt.squeeze().tolist()
+    r, g, lam = reward.squeeze().tolist(), 0.9, 0.8
+    delta = [r[t] + (0.0 if term[0, t, 0] else g * v1[t]) - v[t] for t in range(t_len)]
+    adv = [0.0] * t_len
+    for t in reversed(range(t_len)):
+        cut = bool(term[0, t, 0] or trunc[0, t, 0]) or t == t_len - 1
+        adv[t] = delta[t] + (0.0 if cut else g * lam * adv[t + 1])
+    got = td["advantage"].squeeze().double()
+    assert torch.allclose(got, torch.tensor(adv, dtype=torch.float64), rtol=1e-6)
+    assert adv[1] == pytest.approx(2.0 + 0.9 * 30.0 - 2.0)  # the timeout bootstraps with V(s')
+    assert adv[3] == 0.0  # the fall does not
+    assert torch.allclose(td["value_target"].double(), got.reshape(x.shape) + x, rtol=1e-6)
+
+
+def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp_path):
+    recipe = tiny_recipe(tmp_path / "a")
+    a = prepare(recipe)
+    data1 = rollout(a)
+    list(a.algo.process(data1, 80))
+    state = a.algo.state_dict()
+    path = tmp_path / "state.pt"
+    torch.save(state, path)
+    b = prepare(tiny_recipe(tmp_path / "b"))
+    b.algo.load_state_dict(torch.load(path, weights_only=False))
+    assert b.algo.learner.iteration == 1 and b.algo.learner.lr_now() == a.algo.learner.lr_now()
+    data2 = rollout(a)  # fresh episodes (a rollout starts with a reset), as after a resume
+    a.algo.scaler.ret[:] = 0.0
+    a.algo.lengths.steps[:] = 0
+    for algo in (a.algo, b.algo):
+        torch.manual_seed(5)
+        list(algo.process(data2.clone(), 160))
+    for (k, va), vb in zip(a.algo.learner.actor.state_dict().items(),
+                           b.algo.learner.actor.state_dict().values(), strict=True):
+        assert torch.equal(va, vb), k
+    assert torch.equal(a.algo.learner.obs_norm.mean, b.algo.learner.obs_norm.mean)
+    assert np.array_equal(a.algo.sampler.probs.numpy(), b.algo.sampler.probs.numpy())
+    # evaluation rebuilds the normalised policy from policy_state, statistics frozen
+    norm = a.algo.learner.obs_norm
+    assert not torch.equal(norm.mean, torch.zeros_like(norm.mean))
+    pol = PPO.eval_policy(recipe, a.algo.policy_state(), a.env, deterministic=True)
+    assert isinstance(pol, NormalizedPolicy) and torch.equal(pol.norm.mean, norm.mean)
+    td = a.env.reset()
+    mean_before = pol.norm.mean.clone()
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        act = pol(td.clone())["limbs", "action"]
+        sub = td.clone()
+        sub["limbs", "obs"] = norm(td["limbs", "obs"], td["limbs", "mask"])
+        ref = a.algo.learner.actor(sub)["limbs", "action"]
+    assert torch.equal(act, ref) and torch.equal(pol.norm.mean, mean_before)
+    for p in (a, b):
+        p.env.close()
+
+
+def test_summarize_robots_bootstrap_ci():
+    res = {f"r{i}": {"mean": float(m)} for i, m in enumerate([1.0, 2.0, 3.0, 4.0, 10.0])}
+    s = summarize_robots(res)
+    assert s["mean"] == pytest.approx(4.0) and s["robots"] == 5
+    assert s["ci95_low"] < 4.0 < s["ci95_high"]
+    assert summarize_robots({"a": {"mean": 2.0}})["ci95_low"] == 2.0
+
+
+def test_robot_draw_is_picklable_and_shares_probabilities():
+    import pickle
+
+    probs = RobotSampler.uniform_probs(4)
+    d = pickle.loads(pickle.dumps(RobotDraw(probs, 3)))
+    assert d(np.arange(5)).shape == (5,)
