@@ -24,6 +24,10 @@ from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.factories import base_env, make_env
 
 
+class PolicyMismatchError(ValueError):
+    """A checkpoint's policy weights that do not fit the network its recipe builds."""
+
+
 def eval_robots(specs: Sequence[str]) -> list[Robot]:
     """The robots of ``specs``, each once (a robot named twice is evaluated once)."""
     robots: dict[str, Robot] = {}
@@ -34,9 +38,30 @@ def eval_robots(specs: Sequence[str]) -> list[Robot]:
 
 
 def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
-    """Pad at least as much as in training: size-dependent networks (the per-robot MLP) need it."""
+    """Pad at least as much as in training: size-dependent networks (the per-robot MLP) need it,
+    and cannot take a robot with more limbs (a RobotTooLargeError naming it)."""
+    from gcnt.envs.robot_table import RobotTooLargeError
+    from gcnt.nn.registry import NETWORKS
+
     train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
-    return max(train_k, *(r.num_limbs for r in robots))
+    big = max(robots, key=lambda r: r.num_limbs)
+    entry = NETWORKS.get(recipe.network.name)
+    if big.num_limbs > train_k and entry is not None and entry.fixed_limbs:
+        raise RobotTooLargeError(
+            f"robot {big.name!r} has {big.num_limbs} limbs; network {recipe.network.name!r} "
+            f"was built for at most {train_k} (its input size is fixed by the training robots' "
+            "padding, env.max_limbs): it cannot be evaluated on larger robots"
+        )
+    return max(train_k, big.num_limbs)
+
+
+def check_eval_robots(recipe: Recipe, specs: Sequence[str]) -> list[Robot]:
+    """The robots of ``specs`` if the recipe's policy can be evaluated on them (else the error
+    that evaluating would raise, before anything runs)."""
+    robots = eval_robots(specs)
+    if robots:
+        _pad(recipe, robots)
+    return robots
 
 
 @torch.no_grad()
@@ -62,9 +87,18 @@ def evaluate(
     copies = max(1, min(parallel, episodes))
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
     env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
-    actor = get_algorithm(recipe.algo).eval_policy(
-        recipe, policy_state, env, deterministic=deterministic
-    )
+    try:
+        actor = get_algorithm(recipe.algo).eval_policy(
+            recipe, policy_state, env, deterministic=deterministic
+        )
+    except (ValueError, RuntimeError, KeyError) as e:
+        env.close()
+        if type(e) in (ValueError, RuntimeError, KeyError):  # not a named error of its own
+            raise PolicyMismatchError(
+                "the checkpoint's policy does not fit the recipe's network (was the recipe "
+                f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
+            ) from None
+        raise
 
     n_env = env.batch_size[0]
     target = torch.tensor([quota[i % copies] for i in range(n_env)])
