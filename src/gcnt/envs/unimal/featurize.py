@@ -113,8 +113,9 @@ def scale_context(features: np.ndarray, has_slot: np.ndarray) -> np.ndarray:
     return c
 
 
-#: ``terrain_of(model)``: the per-episode terrain of a sub-env's model (has ``grid``, ``scale``,
-#: ``origin``), for worlds with a height map
+#: ``terrain_of(model)``: the per-episode terrain of a sub-env's model (has the height map's
+#: lookup table ``grid`` and its ``origin``, see ``hfield.height_map``), for worlds with a
+#: height map
 TerrainLookup = Callable[[mujoco.MjModel], object]
 
 
@@ -183,7 +184,6 @@ class UnimalFeaturizer(Featurizer):
         self._terrains = None
         if terrain_of is not None:
             self._terrains = [terrain_of(mdl) for mdl in models]
-            self._scales = np.array([float(t.scale) for t in self._terrains])
             self._origin = self._terrains[0].origin
         #: seconds spent computing height maps (for ``gcnt bench-env``)
         self.hfield_seconds = 0.0
@@ -268,15 +268,12 @@ class UnimalFeaturizer(Featurizer):
             return {}
         t = time.perf_counter()
         if rows is None:
-            xy, quat, terrains, scales = (
-                self.xpos[:, 0, :2], self.xquat[:, 0], self._terrains, self._scales
-            )  # fmt: skip
+            xy, quat, terrains = self.xpos[:, 0, :2], self.xquat[:, 0], self._terrains
         else:
             xy, quat = self.xpos[rows, 0, :2], self.xquat[rows, 0]
             terrains = [self._terrains[i] for i in rows]
-            scales = self._scales[rows]
         hmap = H.height_map(
-            xy, H.heading_from_quat(quat), [tr.grid for tr in terrains], scales, self._origin
+            xy, H.heading_from_quat(quat), [tr.grid for tr in terrains], self._origin
         )
         self.hfield_seconds += time.perf_counter() - t
         return {"hfield": hmap}

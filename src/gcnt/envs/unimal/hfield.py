@@ -19,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 
 from gcnt.envs.unimal import worlds as W
-from gcnt.envs.unimal.terrain import OUTSIDE
 
 _NEAR = [*range(14), 15, 16, 17, 18, 20, 22, 24, 28, 32, 40]
 #: forward offsets in cells (columns)
@@ -35,17 +34,32 @@ CENTRE = int(np.nonzero(LATERAL_CELLS == 0)[0][0]) * COLS + int(
 
 assert (ROWS, COLS, HFIELD_DIM) == (47, 30, 1410)
 
-_FWD = np.tile(FORWARD_CELLS * W.CELL, ROWS)  # [1410] metres along the heading
-_LAT = np.repeat(LATERAL_CELLS * W.CELL, COLS)  # [1410] metres to the left
+#: offsets in cells, [2, 1410]: forward (x in the heading frame) and lateral (y)
+_OFFSETS = np.stack([np.tile(FORWARD_CELLS, ROWS), np.repeat(LATERAL_CELLS, COLS)]).astype(
+    np.float64
+)
 
 
 def sample_points(xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
     """World (x, y) of the samples: ``xy`` [n, 2] torso positions, ``heading`` [n, 2] unit
     (cos yaw, sin yaw). Returns [n, 1410, 2]."""
-    c, s = heading[:, :1], heading[:, 1:2]
-    px = xy[:, :1] + c * _FWD - s * _LAT
-    py = xy[:, 1:2] + s * _FWD + c * _LAT
-    return np.stack([px, py], axis=-1)
+    return _cells(xy, heading, (0.0, 0.0)).transpose(0, 2, 1) * W.CELL
+
+
+def _cells(
+    xy: np.ndarray, heading: np.ndarray, origin: tuple[float, float], shift: float = 0.0
+) -> np.ndarray:
+    """Sample positions in cells from ``origin`` (plus ``shift``), [n, 2 (x, y), 1410]: one
+    matrix product."""
+    n = len(xy)
+    c, s = heading[:, 0], heading[:, 1]
+    rot = np.empty((n, 2, 2))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
+    out = (rot.reshape(2 * n, 2) @ _OFFSETS).reshape(n, 2, HFIELD_DIM)
+    base = (xy - np.asarray(origin)) * (1.0 / W.CELL)
+    base += shift
+    out += base[:, :, None]
+    return out
 
 
 def heading_from_quat(q: np.ndarray) -> np.ndarray:
@@ -66,32 +80,28 @@ def height_map(
     xy: np.ndarray,
     heading: np.ndarray,
     grids: list[np.ndarray],
-    scales: np.ndarray,
     origin: tuple[float, float],
 ) -> np.ndarray:
     """Height maps float32 [n, 1410] of n sub-envs.
 
-    ``grids``: each sub-env's lookup table [nrow, ncol] (rows along y from ``origin[1]``, columns
-    along x from ``origin[0]``, 0.1 m apart; all of one shape), ``scales`` [n]: metres per table
-    unit.
+    ``grids``: each sub-env's lookup table float32 [nrow, ncol] in metres (rows along y from
+    ``origin[1]``, columns along x from ``origin[0]``, 0.1 m apart, all of one shape), whose
+    outermost rows and columns hold ``OUTSIDE``: a sample beyond the table reads its border.
     """
     n = len(grids)
     out = np.empty((n, HFIELD_DIM), np.float32)
     if n == 0:
         return out
     nrow, ncol = grids[0].shape
-    p = sample_points(xy, heading)
-    col = np.rint((p[..., 0] - origin[0]) * (1.0 / W.CELL)).astype(np.int64)
-    row = np.rint((p[..., 1] - origin[1]) * (1.0 / W.CELL)).astype(np.int64)
-    inside = (col >= 0) & (col < ncol) & (row >= 0) & (row < nrow)
-    np.clip(col, 0, ncol - 1, out=col)
-    np.clip(row, 0, nrow - 1, out=row)
-    flat = row * ncol + col
-    vals = np.empty((n, HFIELD_DIM))
+    # nearest vertex: floor(cells + 0.5), once clipped into the table (truncation = floor there)
+    cells = _cells(xy, heading, origin, 0.5)
+    np.clip(cells[:, 0], 0, ncol - 1, out=cells[:, 0])
+    np.clip(cells[:, 1], 0, nrow - 1, out=cells[:, 1])
+    idx = cells.astype(np.intp)
+    flat = idx[:, 1]
+    flat *= ncol
+    flat += idx[:, 0]
     for j, g in enumerate(grids):
-        vals[j] = g.reshape(-1).take(flat[j])
-    vals *= scales[:, None]
-    vals[~inside] = OUTSIDE
-    vals -= vals[:, CENTRE : CENTRE + 1]
-    out[:] = vals
+        np.take(g.reshape(-1), flat[j], out=out[j], mode="clip")  # clip: NaN positions
+    out -= out[:, CENTRE : CENTRE + 1]
     return out

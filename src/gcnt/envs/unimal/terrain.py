@@ -76,12 +76,13 @@ def draw_mt(rng: np.random.Generator, out: np.ndarray | None = None) -> np.ndarr
         else:
             n = _cells(RUGGED_LENGTHS[rng.integers(2)])
             seg = np.empty((nrow, n))
+            waves = [_triangle(n, f) for f in RUGGED_HALF_PERIODS]
             row = 0
             while row < nrow:
                 width = int(rng.integers(RUGGED_BAND_ROWS[0], RUGGED_BAND_ROWS[1] + 1))
-                wave = _triangle(n, RUGGED_HALF_PERIODS[rng.integers(2)])
+                wave = waves[rng.integers(2)]
                 clip = RUGGED_CLIP[rng.integers(2)]
-                seg[row : row + width] = np.minimum(wave, clip)
+                np.minimum(wave, clip, out=seg[row : row + width])
                 row += width
         if end + n > last:
             break  # the obstacle does not fit before the corridor's end
@@ -125,18 +126,21 @@ class MTTerrain:
         self.data = model.hfield_data[adr : adr + nrow * ncol].reshape(nrow, ncol)
         self.scale = float(model.hfield_size[hid, 2])
         self._heights = np.zeros((nrow, ncol))
-        #: lookup table of the height map: values × scale = metres; vertex (0, 0) at origin
-        self.grid = self.data
-        self.origin = (W.MT_X[0], W.MT_Y[0])
+        #: the height map's lookup table (metres): the height field's vertices plus a border of
+        #: OUTSIDE; its vertex (0, 0) lies at ``origin``
+        self.grid = np.full((nrow + 2, ncol + 2), OUTSIDE, np.float32)
+        self.grid[1:-1, 1:-1] = self.data * self.scale
+        self.origin = (W.MT_X[0] - W.CELL, W.MT_Y[0] - W.CELL)
 
     def redraw(self, rng: np.random.Generator) -> None:
         h = draw_mt(rng, self._heights)
         np.divide(h, self.scale, out=self.data, casting="unsafe")
+        self.grid[1:-1, 1:-1] = h
 
     def ground(self, x: float, y: float) -> float:
         """Terrain height at the sample nearest (x, y); 0 outside the corridor."""
-        c = round((x - self.origin[0]) / W.CELL)
-        r = round((y - self.origin[1]) / W.CELL)
+        c = round((x - W.MT_X[0]) / W.CELL)
+        r = round((y - W.MT_Y[0]) / W.CELL)
         if 0 <= r < self.data.shape[0] and 0 <= c < self.data.shape[1]:
             return max(0.0, float(self.data[r, c]) * self.scale)
         return 0.0
@@ -169,14 +173,14 @@ class ObstacleField:
         self.conaffinity = int(model.geom_conaffinity[model.geom_bodyid == 0][0])
         self.park_pos = model.geom_pos[self.geoms].copy()
         self.boxes = np.zeros((0, 4))
-        # Lookup table: walls included, one cell beyond them is already OUTSIDE (via bounds).
+        # Lookup table (metres): floor, walls, and a border of OUTSIDE beyond the walls.
         w2 = 2 * W.WALL_HALF
-        self.origin = (W.OBS_X[0] - w2, W.OBS_Y[0] - w2)
-        ncol = round((W.OBS_X[1] - W.OBS_X[0] + 2 * w2) / W.CELL) + 1
-        nrow = round((W.OBS_Y[1] - W.OBS_Y[0] + 2 * w2) / W.CELL) + 1
-        self.scale = 1.0
-        self._floor = np.full((nrow, ncol), WALL, np.float32)
-        k = round(w2 / W.CELL)  # cells of wall on each side (vertices strictly inside a wall)
+        self.origin = (W.OBS_X[0] - w2 - W.CELL, W.OBS_Y[0] - w2 - W.CELL)
+        ncol = round((W.OBS_X[1] - W.OBS_X[0] + 2 * w2) / W.CELL) + 3
+        nrow = round((W.OBS_Y[1] - W.OBS_Y[0] + 2 * w2) / W.CELL) + 3
+        self._floor = np.full((nrow, ncol), OUTSIDE, np.float32)
+        self._floor[1:-1, 1:-1] = WALL
+        k = round(w2 / W.CELL) + 1  # border and wall cells on each side
         self._floor[k:-k, k:-k] = 0.0
         self.grid = self._floor.copy()
         self.top = 2 * W.BOX_HALF_HEIGHT + W.BOX_LIFT
