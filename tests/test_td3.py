@@ -11,10 +11,9 @@ from tensordict import TensorDict
 from gcnt.cli import main as gcnt
 from gcnt.morphology import morphologies_dir
 from gcnt.recipes import load_recipe
-from gcnt.rl import replay as rb
 from gcnt.rl.factories import train_robots
-from gcnt.rl.run_dir import RunDir
 from gcnt.rl.loop import train
+from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3_loss import PerRobotTD0, masked_mean
 
 ROOT = Path(__file__).parents[1]
@@ -73,31 +72,6 @@ def test_masked_mean_is_the_batch_mean_of_per_robot_means_over_real_limbs():
     values = torch.tensor([[1.0, 3.0, 1000.0], [4.0, 4.0, 4.0]], dtype=torch.float64)
     mask = torch.tensor([[True, True, False], [True, True, True]])
     assert masked_mean(values, mask).item() == (2.0 + 4.0) / 2
-
-
-def test_replay_routes_by_morph_id_and_mixes_all_robots():
-    replay = rb.make_replay(3, capacity=50, batch_size=4)
-    data = TensorDict(
-        {
-            "morph_id": torch.tensor([0, 1, 2, 1, 1, 2]),
-            "limbs": {"obs": torch.arange(6.0).view(6, 1, 1), "action": torch.zeros(6, 1, 1)},
-            "next": {
-                "limbs": {"obs": torch.zeros(6, 1, 1)},
-                "reward": torch.zeros(6, 1),
-                "done": torch.zeros(6, 1, dtype=torch.bool),
-                "terminated": torch.zeros(6, 1, dtype=torch.bool),
-                "truncated": torch.zeros(6, 1, dtype=torch.bool),
-            },
-            "graph": {"adj": torch.zeros(6, 1, 1, dtype=torch.bool)},  # not stored
-        },
-        batch_size=[6],
-    )
-    assert rb.store(replay, data) == 6
-    assert [len(replay[i]) for i in range(3)] == [1, 3, 2]
-    assert set(rb.sample_robot(replay, 1)["morph_id"].tolist()) == {1}
-    mixed = rb.sample_mixed(replay)
-    assert mixed.shape == (12,) and mixed["morph_id"].bincount().tolist() == [4, 4, 4]
-    assert "graph" not in mixed.keys()
 
 
 @pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(ROOT / "recipes")))

@@ -94,6 +94,42 @@ class EvalConfig:
     video: bool = False
 
 
+@dataclass
+class CompileConfig:
+    """Speed switches of the learner and the collector, shared by every algorithm (the names of
+    torchrl's sota-implementations). All off by default: on a CPU, torch.compile took minutes to
+    compile small networks and then ran slower than eager; the rest need CUDA."""
+
+    #: torch.compile the learner's update steps (TD3: the critic step and the actor + target
+    #: step, separately)
+    compile: bool = False
+    #: torch.compile mode: default | reduce-overhead | max-autotune (unset: default)
+    mode: str | None = None
+    #: capture each update step in a CUDA graph (tensordict.nn.CudaGraphModule); CUDA only
+    cudagraphs: bool = False
+    #: bfloat16 autocast in the update steps; CUDA only
+    amp: bool = False
+    #: keep the replay storage on the learner's device instead of CPU memory; CUDA only
+    replay_on_device: bool = False
+    #: torch.compile the collector's policy
+    policy_compile: bool = False
+    #: capture the collector's policy in a CUDA graph; CUDA only
+    policy_cudagraphs: bool = False
+    #: eager calls before a step is compiled or captured
+    warmup: int = 2
+
+    #: switches that need a CUDA device
+    CUDA_ONLY = ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs")
+
+    def check(self) -> None:
+        if self.warmup < 1:
+            raise ValueError(f"warmup must be >= 1, got {self.warmup}")
+        modes = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+        if self.mode not in modes:
+            raise ValueError(f"mode must be one of {', '.join(map(str, modes[1:]))}, got "
+                             f"{self.mode!r}")
+
+
 #: algorithm name -> its recipe section (a dataclass); see :func:`register_algorithm_section`
 ALGORITHM_SECTIONS: dict[str, type] = {}
 #: built-in sections, imported when first needed
@@ -148,6 +184,8 @@ class Recipe:
     network: NetworkConfig = field(default_factory=NetworkConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    #: learner/collector speed switches (torch.compile, CUDA graphs, bf16), off by default
+    compile: CompileConfig = field(default_factory=CompileConfig)
     #: the algorithm sections: the active one validated (a dataclass), others as written
     sections: dict[str, Any] = field(default_factory=dict)
     #: sizes the run derived from the recipe (written by the run into its recipe.yaml; read-only)
@@ -193,6 +231,13 @@ class Recipe:
         relations = getattr(self.sections.get(self.algo), "check_recipe", None)
         if callable(relations):
             relations(self)
+        if not self.device.startswith("cuda"):
+            for key in CompileConfig.CUDA_ONLY:
+                if getattr(self.compile, key):
+                    raise ValueError(
+                        f"compile.{key}=true needs a CUDA device; this recipe has "
+                        f"device={self.device!r}"
+                    )
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}

@@ -176,6 +176,7 @@ def train(
             env_device="cpu",
             storing_device="cpu",
             auto_register_policy_transforms=False,  # the policies need no InitTracker
+            **collector_kwargs(recipe.compile),  # compile.policy_compile / policy_cudagraphs
         )
         if multi:
             env.close()  # the workers build their own envs

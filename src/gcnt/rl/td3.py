@@ -1,14 +1,16 @@
 """TD3 for one policy over many robots, behind the algorithm seam (``gcnt.rl.algorithm``).
 
-Built from torchrl parts: per-robot replay buffers (``ReplayBufferEnsemble`` routed by
-``morph_id``), ``TD3Loss`` with per-limb twin critics (see ``td3_loss``), ``SoftUpdate`` targets
-and Gaussian exploration (``AdditiveGaussianModule``); the shared run loop (``gcnt.rl.loop``)
-collects the batches. Settings: the ``td3:`` recipe section (``gcnt.rl.td3_config``).
+Parts: per-robot replay rings in one [robots, capacity] storage (:class:`gcnt.rl.replay.
+RobotReplay`, one index draw per mini-batch), per-limb twin critics with a per-robot TD target
+(the loss math in ``td3_loss``, checked against torchrl's ``TD3Loss`` by the tests), soft target
+updates and Gaussian exploration (torchrl's ``AdditiveGaussianModule``); the shared run loop
+(``gcnt.rl.loop``) collects the batches. Settings: the ``td3:`` recipe section
+(``gcnt.rl.td3_config``); speed switches: the ``compile:`` section (``gcnt.rl.accelerate``).
 
 Two update schedules (``td3.schedule``):
 
 * ``paper``: robots step in lockstep until every robot has finished an episode; then each robot in
-  turn gets as many updates as it stored transitions, each from its own buffer.
+  turn gets as many updates as it stored transitions, each from its own ring.
 * ``mixed``: every ``steps_per_batch`` lockstep steps, updates on padded mini-batches that hold
   ``batch_size`` transitions of every robot: the same samples per stored step as ``paper``, in
   one forward pass per update instead of one per robot.
@@ -18,6 +20,7 @@ Every stored environment step is counted, over all robots.
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -29,94 +32,182 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 from torchrl.modules import AdditiveGaussianModule
-from torchrl.objectives import SoftUpdate
 
 from gcnt.morphology import Robot
 from gcnt.nn.graph_lookup import is_table_key
-from gcnt.nn.keys import ACTION
+from gcnt.nn.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.recipes import Recipe
 from gcnt.rl import replay as rb
+from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.factories import make_net
 from gcnt.rl.td3_config import TD3Config
-from gcnt.rl.td3_loss import actor_loss, critic_loss, make_td3_loss
+from gcnt.rl.td3_loss import (
+    deterministic_actor_loss,
+    smoothed_target_action,
+    target_noise,
+    td_target,
+    twin_critic_loss,
+)
+from gcnt.rl.tensor_chain import TensorChain
 
 log = logging.getLogger(__name__)
 
 
 class TD3Learner:
-    """Networks, loss, optimisers and the update step; no env, no buffer (benchmarkable alone)."""
+    """Networks, optimisers and the update steps; no env, no buffer (benchmarkable alone).
+
+    The actor and the two critics are the method's TensorDict chains (the collector runs the
+    actor as such); the update calls the same modules on plain tensors (:class:`TensorChain`),
+    with robot-only stages computed once per robot. Targets are copies of the online networks,
+    moved towards them by ``tau`` after each actor update. Two steps with static shapes, so each
+    can be compiled and captured (``compile:`` recipe section, :mod:`gcnt.rl.accelerate`): the
+    critic step, and the actor + target step that runs every ``policy_delay`` critic steps.
+    """
 
     def __init__(self, recipe: Recipe, env: EnvBase):
         o: TD3Config = recipe.algo_config
-        self.recipe, self.config = recipe, o
+        self.recipe, self.config, self.accel = recipe, o, recipe.compile
+        self.device = torch.device(recipe.device)
         self.actor = make_net(recipe, env, "td3_actor")
-        # two independently initialised critics (given one, TD3Loss re-draws the twin's weights
-        # uniformly between each tensor's min and max, losing the layers' own init schemes)
-        self.critics = [make_net(recipe, env, "td3_critic") for _ in range(2)]
-        self.loss = make_td3_loss(
-            self.actor,
-            self.critics,
-            gamma=o.gamma,
-            policy_noise=o.policy_noise,
-            noise_clip=o.noise_clip,
+        # two independently initialised critics (each layer keeps its own init scheme)
+        self.critics = torch.nn.ModuleList(make_net(recipe, env, "td3_critic") for _ in range(2))
+        self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
+        self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
+        self.f_actor = TensorChain(self.actor)
+        self.f_critics = [TensorChain(c) for c in self.critics]
+        self.f_target_actor = TensorChain(self.target_actor)
+        self.f_target_critics = [TensorChain(c) for c in self.target_critics]
+        self.actor_params = list(self.actor.parameters())
+        self.critic_params = list(self.critics.parameters())
+        self._online = self.actor_params + self.critic_params
+        self._target = list(self.target_actor.parameters()) + list(
+            self.target_critics.parameters()
         )
-        self.target_updater = SoftUpdate(self.loss, tau=o.tau)
-        self.actor_params = list(self.loss.actor_network_params.values(True, True))
-        self.critic_params = list(self.loss.qvalue_network_params.values(True, True))
-        self.actor_opt = torch.optim.Adam(self.actor_params, lr=o.lr)
-        self.critic_opt = torch.optim.Adam(self.critic_params, lr=o.lr)
-        self.lookup = self.actor[0]  # every chain starts with its GraphLookup
+        opt_kw = optimizer_kwargs(self.accel, self.device)
+        self.actor_opt = torch.optim.Adam(self.actor_params, lr=o.lr, **opt_kw)
+        self.critic_opt = torch.optim.Adam(self.critic_params, lr=o.lr, **opt_kw)
+        self.critic_step = accelerate(self._critic_step, self.accel, self.device)
+        self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One critic update, plus an actor and target update every ``policy_delay`` calls."""
-        o = self.config
-        batch = self.lookup(batch.to(self.recipe.device))  # restore the static graph keys
-        q_loss = critic_loss(self.loss, batch)
-        self.critic_opt.zero_grad(set_to_none=True)
-        q_loss.backward()
-        if o.max_grad_norm > 0:
-            torch.nn.utils.clip_grad_norm_(self.critic_params, o.max_grad_norm)
-        self.critic_opt.step()
-        self.updates += 1
-        out = {"loss_critic": q_loss.item()}
-        if self.updates % o.policy_delay == 0:
-            a_loss = actor_loss(self.loss, batch)
-            self.actor_opt.zero_grad(set_to_none=True)
-            a_loss.backward()
-            if o.max_grad_norm > 0:
-                torch.nn.utils.clip_grad_norm_(self.actor_params, o.max_grad_norm)
-            self.actor_opt.step()
-            self.target_updater.step()
-            out["loss_actor"] = a_loss.item()
+    # ------------------------------------------------------------------ the two steps
+    def _inputs(self, batch: TensorDictBase, next_step: bool) -> dict:
+        pre = ("next",) if next_step else ()
+        out = {OBS: batch.get((*pre, *OBS))}
+        hfield = batch.get((*pre, HFIELD), None)
+        if hfield is not None:
+            out[HFIELD] = hfield
         return out
 
+    def critic_loss(self, batch: TensorDictBase) -> torch.Tensor:
+        """The twin-critic loss on ``batch`` (draws the target-smoothing noise first)."""
+        o = self.config
+        robots = self.f_critics[0].robot_batch(batch.get(MORPH_ID), self.f_actor)
+        mask = robots.gathered(MASK)
+        action = batch.get(ACTION)
+        noise = target_noise(action, o.policy_noise, o.noise_clip)
+        with autocast(self.accel, self.device):
+            with torch.no_grad():
+                nxt = self._inputs(batch, next_step=True)
+                next_action = self.f_target_actor(nxt, robots)[ACTION]
+                nxt[ACTION] = smoothed_target_action(next_action, noise)
+                next_q = tuple(f(nxt, robots)[LIMB_Q] for f in self.f_target_critics)
+                target = td_target(
+                    batch.get(("next", "reward")),
+                    batch.get(("next", "terminated")),
+                    next_q,
+                    mask,
+                    o.gamma,
+                )
+            now = self._inputs(batch, next_step=False)
+            now[ACTION] = action
+            q = tuple(f(now, robots)[LIMB_Q] for f in self.f_critics)
+            return twin_critic_loss(q, target.to(q[0].dtype), mask).to(action.dtype)
+
+    def actor_loss(self, batch: TensorDictBase) -> torch.Tensor:
+        """-Q1 of the actor's action on ``batch``, over real limbs."""
+        robots = self.f_actor.robot_batch(batch.get(MORPH_ID), self.f_critics[0])
+        with autocast(self.accel, self.device):
+            now = self._inputs(batch, next_step=False)
+            now[ACTION] = self.f_actor(now, robots)[ACTION]
+            q1 = self.f_critics[0](now, robots)[LIMB_Q]
+            return deterministic_actor_loss(q1, robots.gathered(MASK)).to(now[OBS].dtype)
+
+    def _critic_step(self, batch: TensorDictBase) -> torch.Tensor:
+        """One critic update on ``batch``; returns the (detached) critic loss."""
+        o = self.config
+        loss = self.critic_loss(batch)
+        self.critic_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if o.max_grad_norm > 0:
+            torch.nn.utils.clip_grad_norm_(self.critic_params, o.max_grad_norm, foreach=True)
+        self.critic_opt.step()
+        return loss.detach()
+
+    def _actor_step(self, batch: TensorDictBase) -> torch.Tensor:
+        """One actor update (critic 1 fixed) and the soft target update; returns the loss."""
+        o = self.config
+        loss = self.actor_loss(batch)
+        # gradients for the actor only (the critic is a fixed function here)
+        grads = torch.autograd.grad(loss, self.actor_params, allow_unused=True)
+        for p, g in zip(self.actor_params, grads, strict=True):
+            p.grad = g
+        if o.max_grad_norm > 0:
+            torch.nn.utils.clip_grad_norm_(self.actor_params, o.max_grad_norm, foreach=True)
+        self.actor_opt.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(self._target, self._online, o.tau)
+        return loss.detach()
+
+    def step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One critic update, plus an actor and target update every ``policy_delay`` calls;
+        the losses stay tensors on the device (no synchronisation)."""
+        batch = batch.to(self.device) if batch.device != self.device else batch
+        begin_step(self.accel)
+        out = {"loss_critic": self.critic_step(batch)}
+        self.updates += 1
+        if self.updates % self.config.policy_delay == 0:
+            begin_step(self.accel)
+            out["loss_actor"] = self.actor_step(batch)
+        return out
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """:meth:`step`, with the losses as floats."""
+        return {k: v.item() for k, v in self.step(batch).items()}
+
+    # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
-        # The robot table is static data, not learnt state: the loss holds (expanded) copies of
-        # GraphLookup's buffers, which are left out so a checkpoint loads for any robot set.
-        loss_state = {k: v for k, v in self.loss.state_dict().items() if not is_table_key(k)}
+        # The robot table is static data, not learnt state: GraphLookup's buffers are left out
+        # so that a checkpoint loads for any robot set.
         return {
-            "loss": loss_state,
+            "actor": _weights(self.actor),
+            "critics": _weights(self.critics),
+            "target_actor": _weights(self.target_actor),
+            "target_critics": _weights(self.target_critics),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "updates": self.updates,
         }
 
     def load_state_dict(self, state: dict) -> None:
-        try:
-            missing, unexpected = self.loss.load_state_dict(state["loss"], strict=False)
-        except RuntimeError as e:  # a tensor of another shape: the recipe's sizes changed
-            raise ValueError(f"the checkpoint does not fit the recipe's networks: {e}") from None
-        missing = [k for k in missing if not is_table_key(k)]
-        if missing or unexpected:
+        if "actor" not in state:
             raise ValueError(
-                f"the checkpoint does not fit the recipe's networks: missing {missing[:5]}, "
-                f"unexpected {unexpected[:5]}"
+                "the checkpoint's TD3 learner state has an older layout (one torchrl TD3Loss); "
+                "its policy can still be evaluated (`gcnt eval`), but training cannot resume "
+                "from it"
             )
+        _load_weights(self.actor, state["actor"])
+        _load_weights(self.critics, state["critics"])
+        _load_weights(self.target_actor, state["target_actor"])
+        _load_weights(self.target_critics, state["target_critics"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.updates = state["updates"]
+
+
+def _weights(module: torch.nn.Module) -> dict:
+    return {k: v for k, v in module.state_dict().items() if not is_table_key(k)}
 
 
 class UpdateSchedule:
@@ -133,23 +224,34 @@ class UpdateSchedule:
         self.pending += np.bincount(morph.reshape(-1).numpy(), minlength=len(self.pending))
         self.finished[morph[data["next", "done"].squeeze(-1)].numpy()] = True
 
-    def batches(self, replay, warm: bool):
+    def batches(self, replay: rb.RobotReplay, warm: bool) -> Iterator[TensorDictBase]:
         if not warm:  # random exploration, or a buffer still smaller than a batch
             self.pending[:] = 0
             return
         if self.kind == "paper" and self.finished.all():
-            # each robot in turn, as many updates as it stored transitions, from its own buffer
+            # each robot in turn, as many updates as it stored transitions, from its own ring
             for robot, n in enumerate(self.pending):
                 for _ in range(round(n * self.updates_per_step)):
-                    yield rb.sample_robot(replay, robot)
+                    yield replay.sample_robot(robot)
             self.finished[:] = False
         elif self.kind == "mixed":
-            # one padded batch holds batch_size transitions of every robot
+            # one padded batch holds batch_size transitions of every robot (one gather)
             for _ in range(round(self.pending.sum() * self.updates_per_step / len(self.pending))):
-                yield rb.sample_mixed(replay)
+                yield replay.sample_mixed()
         else:
             return
         self.pending[:] = 0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"pending": self.pending.copy(), "finished": self.finished.copy()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.pending[:] = state["pending"]
+        self.finished[:] = state["finished"]
+
+
+#: the replay checkpoint's file in the run's buffers directory (the stored count in its name)
+BUFFER_FILE = "replay-{stored}.pt"
 
 
 class TD3(Algorithm):
@@ -163,9 +265,11 @@ class TD3(Algorithm):
         n = len(self.robots)
         self.learner = TD3Learner(recipe, env)
         capacity = rb.per_robot_capacity(n, c.buffer_size_per_robot, c.buffer_total_size)
-        self.replay = rb.make_replay(n, capacity, c.batch_size)
+        replay_device = recipe.device if recipe.compile.replay_on_device else "cpu"
+        self.replay = rb.RobotReplay(n, capacity, c.batch_size, device=replay_device)
         self.schedule = UpdateSchedule(c, n)
         self.stored = 0
+        self._buffer_file: str | None = None  # the replay file the last loaded state names
 
     @property
     def updates(self) -> int:  # the learner counts them
@@ -198,13 +302,18 @@ class TD3(Algorithm):
 
     def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
         c = self.config
-        self.stored += rb.store(self.replay, data)
+        self.stored += self.replay.extend(data)
         self.schedule.add(data)
-        warm = env_steps >= c.init_random_frames and all(
-            len(self.replay[i]) >= c.batch_size for i in range(len(self.robots))
-        )
-        for batch in self.schedule.batches(self.replay, warm):
-            yield self.learner.update(batch)
+        warm = env_steps >= c.init_random_frames and int(self.replay.sizes.min()) >= c.batch_size
+        # the losses stay on the device during a phase: one synchronisation per phase
+        losses = [self.learner.step(batch) for batch in self.schedule.batches(self.replay, warm)]
+        if losses:
+            keys = sorted({k for row in losses for k in row})
+            values = {k: torch.stack([row[k] for row in losses if k in row]).tolist()
+                      for k in keys}
+            its = {k: iter(v) for k, v in values.items()}
+            for row in losses:
+                yield {k: next(its[k]) for k in row}
 
     def resolved(self) -> dict[str, Any]:
         c, fpb = self.config, self._frames_per_batch()
@@ -218,25 +327,48 @@ class TD3(Algorithm):
         }
 
     def state_dict(self) -> dict[str, Any]:
-        return self.learner.state_dict()
+        state = {
+            **self.learner.state_dict(),
+            "stored": self.stored,
+            "schedule": self.schedule.state_dict(),
+        }
+        if self.config.checkpoint_buffers:
+            state["buffer_file"] = BUFFER_FILE.format(stored=self.stored)
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.learner.load_state_dict(state)
+        self.stored = state.get("stored", 0)
+        if "schedule" in state:
+            self.schedule.load_state_dict(state["schedule"])
+        self._buffer_file = state.get("buffer_file")
 
     def buffers_state(self, directory: Path) -> bool:
+        """Write the replay (atomically) as ``replay-<stored>.pt``, named in the learner state
+        written next; the previous file stays until then, so that a run killed between the two
+        writes resumes from a matching pair. Older files are removed."""
         if not self.config.checkpoint_buffers:
             return False
-        for i in range(len(self.robots)):
-            path = Path(directory) / str(i)
-            path.mkdir(parents=True, exist_ok=True)
-            self.replay[i].dumps(path)
+        directory = Path(directory)
+        name = BUFFER_FILE.format(stored=self.stored)
+        self.replay.save(directory / name)
+        keep = {name, self._buffer_file}
+        for old in directory.glob(BUFFER_FILE.format(stored="*")):
+            if old.name not in keep:
+                old.unlink(missing_ok=True)
+        self._buffer_file = name
         return True
 
     def load_buffers(self, directory: Path) -> None:
-        for i in range(len(self.robots)):
-            path = Path(directory) / str(i)
-            if path.exists():
-                self.replay[i].loads(path)
+        if self._buffer_file is None:
+            log.warning("the checkpoint names no replay file; starting with an empty replay")
+            return
+        path = Path(directory) / self._buffer_file
+        if not path.exists():
+            raise FileNotFoundError(
+                f"{path}: the replay checkpoint named by the run's checkpoint is missing"
+            )
+        self.replay.load(path)
 
     def policy_state(self) -> dict[str, Any]:
         actor = self.learner.actor.state_dict()

@@ -78,3 +78,51 @@ def actor_loss(loss: TD3Loss, batch: TensorDictBase) -> torch.Tensor:
     """-Q1 of the actor's action, averaged over real limbs."""
     per_limb, _ = loss.actor_loss(batch)  # [*B, K]
     return masked_mean(per_limb, batch.get(MASK))
+
+
+# ------------------------------------------------------------------ the learner's fast path
+# The same quantities as ``critic_loss`` / ``actor_loss`` above, from per-limb Q tensors that the
+# learner computes with plain-tensor chain calls (gcnt.rl.tensor_chain); tests check both agree.
+
+
+def smoothed_target_action(
+    next_action: torch.Tensor, noise: torch.Tensor, low: float = -1.0, high: float = 1.0
+) -> torch.Tensor:
+    """TD3's target-policy smoothing: the target actor's action plus clipped noise, clamped."""
+    return (next_action + noise).clamp(low, high)
+
+
+def target_noise(action: torch.Tensor, policy_noise: float, noise_clip: float) -> torch.Tensor:
+    """N(0, policy_noise²) clipped at ±noise_clip, one draw per action slot (drawn first, as
+    torchrl's TD3Loss does, so both paths consume the random stream alike)."""
+    return (torch.randn_like(action) * policy_noise).clamp(-noise_clip, noise_clip)
+
+
+def td_target(
+    reward: torch.Tensor,
+    terminated: torch.Tensor,
+    next_q: tuple[torch.Tensor, ...],
+    mask: torch.Tensor,
+    gamma: float,
+) -> torch.Tensor:
+    """``r + γ (1 - terminated) · mean over real limbs of min_i Q_i'`` [*B, 1]; ``next_q`` are
+    the target critics' per-limb values [*B, K, 1]."""
+    q_min = next_q[0]
+    for q in next_q[1:]:
+        q_min = torch.minimum(q_min, q)
+    v_next = limb_mean(q_min, mask)  # [*B, 1]
+    not_term = (~terminated.bool()).to(v_next.dtype)
+    return reward.to(v_next.dtype) + gamma * not_term * v_next
+
+
+def twin_critic_loss(
+    q: tuple[torch.Tensor, ...], target: torch.Tensor, mask: torch.Tensor
+) -> torch.Tensor:
+    """Σ over critics of (Q_i - target)² per real limb, averaged as :func:`masked_mean`."""
+    per_limb = sum((qi.squeeze(-1) - target).pow(2) for qi in q)  # [*B, K]
+    return masked_mean(per_limb, mask)
+
+
+def deterministic_actor_loss(q1: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """-Q1 of the actor's action [*B, K, 1], averaged as :func:`masked_mean`."""
+    return masked_mean(-q1.squeeze(-1), mask)

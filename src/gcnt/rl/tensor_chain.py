@@ -1,0 +1,179 @@
+"""Run a policy chain on plain tensors: the learner's fast path through the same modules.
+
+A chain (``gcnt.nn.chain``) is a ``TensorDictSequential`` of ``TensorDictModule`` stages. Inside
+a learner's update, each TensorDict call costs more than the small networks' arithmetic (tensordict
+wraps every output, checks keys, ...). :class:`TensorChain` walks the same stages once, at build
+time, and then calls each stage's torch module directly on a dict of tensors keyed like the
+TensorDict. The parameters are the chain's own (no copy), so an optimiser over the chain's
+parameters trains both, and the collector keeps running the TensorDict chain.
+
+Stages whose inputs depend only on the robot (the GraphLookup's static keys, or outputs of other
+such stages: GCNT's GCN and distance bias, SWAT's relational bias, ModuMorph's context MLPs) are
+computed once per robot of the table and gathered by ``morph_id`` where a per-sample stage reads
+them: the same values, gradients summed over the robot's samples, at a fraction of the cost. A
+stage with active dropout is never hoisted. Anything that is not a plain ``TensorDictModule``
+runs through its TensorDict call (correct, just not faster).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from torch import Tensor, nn
+
+from gcnt.nn.graph_lookup import GraphLookup
+
+Key = str | tuple[str, ...]
+
+
+def _key(key) -> Key:
+    return key if isinstance(key, str) else (key[0] if len(key) == 1 else tuple(key))
+
+
+@dataclass
+class _Stage:
+    module: TensorDictModuleBase
+    in_keys: list[Key]
+    out_keys: list[Key]
+    #: call ``module.module(*tensors)`` (a plain TensorDictModule) rather than the TD call
+    plain: bool
+    #: every input depends only on the robot: computed on the table's R rows
+    per_robot: bool
+
+
+def _stages(module: TensorDictModuleBase) -> list[TensorDictModuleBase]:
+    if isinstance(module, TensorDictSequential):
+        out = []
+        inner = module.module
+        for m in inner.values() if isinstance(inner, nn.ModuleDict) else inner:
+            out += _stages(m)
+        return out
+    return [module]
+
+
+def _has_dropout(module: nn.Module) -> bool:
+    for m in module.modules():
+        if isinstance(m, nn.modules.dropout._DropoutNd) and m.p > 0:
+            return True
+        if getattr(m, "dropout", 0) not in (0, 0.0, None) and isinstance(m.dropout, float):
+            return True
+    return False
+
+
+class RobotBatch:
+    """Per-batch context shared by every chain call of one update: the sample's ``morph_id``, the
+    robot table (per-robot rows) and the per-sample gathers already made."""
+
+    def __init__(self, table: Mapping[Key, Tensor], ids: Tensor) -> None:
+        self.table = dict(table)
+        self.ids = ids
+        self._gathered: dict[Key, Tensor] = {}
+
+    def gathered(self, key: Key) -> Tensor:
+        out = self._gathered.get(key)
+        if out is None:
+            out = self.table[key].index_select(0, self.ids)
+            self._gathered[key] = out
+        return out
+
+
+class TensorChain:
+    """``chain`` as a function of a dict of tensors (see the module docstring).
+
+    ``chain(inputs, robots)`` returns a dict holding the inputs and every key the stages wrote;
+    ``inputs`` holds the per-sample keys (``limbs/obs``, for critics ``limbs/action``, ``hfield``),
+    ``robots`` the :class:`RobotBatch` of the batch (from :meth:`robot_batch`).
+    """
+
+    def __init__(self, chain: TensorDictModuleBase) -> None:
+        self.chain = chain
+        self.lookup: GraphLookup | None = None
+        self.stages: list[_Stage] = []
+        static: set[Key] = set()
+        for st in _stages(chain):
+            if isinstance(st, GraphLookup):
+                if self.lookup is not None:
+                    raise ValueError("TensorChain: a chain with two GraphLookups")
+                self.lookup = st
+                static |= {_key(k) for k in st.keys}
+                continue
+            in_keys = [_key(k) for k in st.in_keys]
+            out_keys = [_key(k) for k in st.out_keys]
+            plain = (
+                type(st) is TensorDictModule
+                and getattr(st, "_kwargs", None) is None
+                and getattr(st, "method", None) is None
+                and not getattr(st, "method_kwargs", None)
+            )
+            per_robot = (
+                plain and bool(in_keys) and all(k in static for k in in_keys)
+                and not _has_dropout(st)
+            )
+            if per_robot:
+                static |= set(out_keys)
+            else:
+                static -= set(out_keys)
+            self.stages.append(_Stage(st, in_keys, out_keys, plain, per_robot))
+        if self.lookup is None:
+            raise ValueError("TensorChain: the chain has no GraphLookup at its head")
+        self.table_keys: list[Key] = [_key(k) for k in self.lookup.keys]
+
+    def table(self) -> dict[Key, Tensor]:
+        """The lookup's robot table, per robot (follows the module's device and dtype)."""
+        tab = self.lookup.table()
+        return {k: tab.get(k) for k in self.table_keys}
+
+    def robot_batch(self, ids: Tensor, *others: TensorChain) -> RobotBatch:
+        """The :class:`RobotBatch` of samples with robots ``ids``, for this chain and ``others``
+        (the union of their tables: chains of one method and robot set share them)."""
+        table = self.table()
+        for other in others:
+            for k, v in other.table().items():
+                table.setdefault(k, v)
+        return RobotBatch(table, ids.reshape(-1).long())
+
+    def __call__(self, inputs: Mapping[Key, Tensor], robots: RobotBatch) -> dict[Key, Tensor]:
+        env: dict[Key, Tensor] = dict(inputs)  # per-sample tensors
+        per_robot: dict[Key, Tensor] = {}  # outputs of per-robot stages, [R, ...]
+
+        def get(k: Key) -> Tensor:
+            v = env.get(k)
+            if v is not None:
+                return v
+            if k in per_robot:
+                v = per_robot[k].index_select(0, robots.ids)
+                env[k] = v
+                return v
+            if k in robots.table:
+                v = robots.gathered(k)
+                env[k] = v
+                return v
+            raise KeyError(f"TensorChain: no input {k!r} for {type(self.chain).__name__}")
+
+        for st in self.stages:
+            if st.per_robot:
+                args = [per_robot.get(k, robots.table.get(k)) for k in st.in_keys]
+                out = st.module.module(*args)
+                dest = per_robot
+            elif st.plain:
+                out = st.module.module(*[get(k) for k in st.in_keys])
+                dest = env
+            else:  # anything else: its own TensorDict call
+                td = TensorDict(
+                    {k: get(k) for k in st.in_keys},
+                    batch_size=robots.ids.shape,
+                    device=robots.ids.device,
+                )
+                td = st.module(td)
+                for k in st.out_keys:
+                    env[k] = td.get(k)
+                continue
+            if len(st.out_keys) == 1:
+                dest[st.out_keys[0]] = out if isinstance(out, Tensor) else out[0]
+            else:
+                for k, v in zip(st.out_keys, out, strict=True):
+                    dest[k] = v
+        return env
