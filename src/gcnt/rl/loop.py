@@ -28,6 +28,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl.accelerate import collector_kwargs
 from gcnt.rl.algorithm import Algorithm, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of, train_robots
