@@ -125,7 +125,6 @@ class MTTerrain:
         nrow, ncol = int(model.hfield_nrow[hid]), int(model.hfield_ncol[hid])
         self.data = model.hfield_data[adr : adr + nrow * ncol].reshape(nrow, ncol)
         self.scale = float(model.hfield_size[hid, 2])
-        self._heights = np.zeros((nrow, ncol))
         #: the height map's lookup table (metres): the height field's vertices plus a border of
         #: OUTSIDE; its vertex (0, 0) lies at ``origin``
         self.grid = np.full((nrow + 2, ncol + 2), OUTSIDE, np.float32)
@@ -133,9 +132,8 @@ class MTTerrain:
         self.origin = (W.MT_X[0] - W.CELL, W.MT_Y[0] - W.CELL)
 
     def redraw(self, rng: np.random.Generator) -> None:
-        h = draw_mt(rng, self._heights)
-        np.divide(h, self.scale, out=self.data, casting="unsafe")
-        self.grid[1:-1, 1:-1] = h
+        h = draw_mt(rng, self.grid[1:-1, 1:-1])  # float32 metres, in the lookup table
+        np.multiply(h, 1.0 / self.scale, out=self.data)
 
     def ground(self, x: float, y: float) -> float:
         """Terrain height at the sample nearest (x, y); 0 outside the corridor."""
