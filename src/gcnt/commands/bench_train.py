@@ -6,6 +6,13 @@ environment steps per second and updates per second. The ratio of end-to-end to 
 the fraction of time spent learning; 1.0 means the env, collector and buffers cost nothing. With
 one update per environment step (the paper), env steps/s equals updates/s in the long run; over a
 short window the paper schedule's not-yet-trained pending steps make env steps/s look higher.
+
+PPO recipes (``algo: ppo``): (1) the bare PPO update of one iteration (GAE, epochs of mini-batch
+steps, statistics; KL early stop off so that every epoch runs) on data collected once, as env
+steps/s it could absorb (frames per iteration / update time) and mini-batch updates/s; (2) ``gcnt
+train`` for ``--iterations`` iterations end to end (the first one left out as warm-up): env steps/s
+overall and in collection alone. The ratio of end-to-end to bare env steps/s is the share of the
+time spent updating.
 """
 
 from __future__ import annotations
@@ -16,13 +23,14 @@ import tempfile
 import time
 
 
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recipe", nargs="?", default="recipes/smpenv/walker.yaml")
     p.add_argument("overrides", nargs="*", help="dotted recipe overrides")
     p.add_argument("--updates", type=int, default=30, help="bare updates to time")
     p.add_argument("--steps", type=int, default=400, help="env steps to time end to end")
     p.add_argument("--warmup", type=int, default=200, help="random-action steps before timing")
+    p.add_argument("--iterations", type=int, default=3,
+                   help="PPO: iterations to run end to end (the first is warm-up)")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
@@ -108,8 +116,12 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
 
     recipe = load_recipe(args.recipe, args.overrides)
+    if recipe.algo == "ppo":
+        return run_ppo(args, recipe)
     if recipe.algo != "td3":
-        raise RecipeError(f"bench-train measures TD3 recipes; {args.recipe} has algo {recipe.algo}")
+        raise RecipeError(
+            f"bench-train measures TD3 and PPO recipes; {args.recipe} has algo {recipe.algo}"
+        )
     return run_td3(args, recipe)
 
 
@@ -157,4 +169,89 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates); "
             f"ratio {row['ratio']:.3f}"
         )
+    return 0
+
+
+def ppo_bare_rate(recipe) -> dict:
+    """One PPO iteration's update (GAE + all epochs, KL stop off) on data collected once."""
+    import torch
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from gcnt.rl.loop import prepare
+
+    recipe.algo_config.kl_stop = 0.0
+    prep = prepare(recipe)
+    algo, o = prep.algo, recipe.algo_config
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        data = prep.env.rollout(o.steps_per_env, algo.policy(), break_when_any_done=False)
+    times, updates = [], 0
+    for _ in range(2):  # the first warms up
+        t0 = time.perf_counter()
+        updates = len(list(algo.process(data.clone(), data.numel())))
+        times.append(time.perf_counter() - t0)
+    prep.env.close()
+    return {"frames": data.numel(), "update_s": times[-1], "updates": updates}
+
+
+def ppo_end_to_end(recipe, iterations: int) -> dict:
+    from gcnt.rl.loop import train
+    from gcnt.rl.run_dir import RunDir
+
+    fpb = recipe.algo_config.num_envs * recipe.algo_config.steps_per_env
+    with tempfile.TemporaryDirectory() as tmp:
+        recipe.run_dir = tmp
+        recipe.algo_config.kl_stop = 0.0
+        recipe.collector.total_frames = fpb * max(2, iterations)
+        recipe.logger.backend, recipe.logger.progress = "none", False
+        recipe.logger.log_interval = fpb
+        recipe.checkpoint_interval = 10**12
+        recipe.eval.episodes = 0
+        run = RunDir(tmp)
+        run.create(recipe)
+        train(recipe, run)
+        rows = run.read_metrics()[1:]  # the first iteration warms up
+    secs = sum(fpb / r["env_steps_per_s"] for r in rows)
+    collect = [r["collect_env_steps_per_s"] for r in rows if r.get("collect_env_steps_per_s")]
+    return {
+        "env_steps_per_s": fpb * len(rows) / secs,
+        "collect_env_steps_per_s": sum(collect) / len(collect) if collect else float("nan"),
+        "update_s": sum(r["update_s"] for r in rows) / len(rows),
+    }
+
+
+def run_ppo(args: argparse.Namespace, recipe) -> int:
+    import torch
+
+    bare = ppo_bare_rate(recipe)
+    e2e = ppo_end_to_end(recipe, args.iterations)
+    bare_steps = bare["frames"] / bare["update_s"]
+    out = {
+        "recipe": args.recipe,
+        "algo": "ppo",
+        "network": recipe.network.name,
+        "collector": recipe.algo_config.collector,
+        "frames_per_iteration": bare["frames"],
+        "threads": torch.get_num_threads(),
+        "bare_update_s": bare["update_s"],
+        "bare_updates_per_s": bare["updates"] / bare["update_s"],
+        "bare_env_steps_per_s": bare_steps,
+        "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
+        "collect_env_steps_per_s": e2e["collect_env_steps_per_s"],
+        "end_to_end_update_s": e2e["update_s"],
+        "ratio": e2e["env_steps_per_s"] / bare_steps,
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(
+            f"bare PPO update:   {bare['update_s']:8.2f} s per iteration of {bare['frames']} "
+            f"frames = {bare_steps:.0f} env steps/s, {out['bare_updates_per_s']:.2f} "
+            f"mini-batch updates/s ({recipe.network.name})"
+        )
+        print(
+            f"end to end:        {e2e['env_steps_per_s']:8.2f} env steps/s "
+            f"(collection alone {e2e['collect_env_steps_per_s']:.0f}/s, update "
+            f"{e2e['update_s']:.2f} s per iteration; collector {out['collector']})"
+        )
+        print(f"ratio (end-to-end ÷ bare env steps/s): {out['ratio']:.3f}")
     return 0
