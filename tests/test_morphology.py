@@ -127,10 +127,11 @@ def test_unknown_family(tmp_path):
     assert "'octopus_3'" in msg and "family" in msg
 
 
-def test_limb_name_without_a_type(tmp_path):
-    body = TORSO + CAPSULE + limb("tentacle", ("j1",)) + "</body>"
-    msg = error_of(tmp_path, mjcf(body, motor("j1")))
-    assert "'tentacle'" in msg
+def test_limb_name_without_a_type_is_typed_by_its_place_in_the_tree(tmp_path):
+    body = TORSO + CAPSULE + limb("tentacle", ("j1",), limb("sucker", ("j2",))) + "</body>"
+    _, robot = load_text(tmp_path, mjcf(body, motor("j1") + motor("j2")))
+    assert robot.global_types.tolist() == types("torso", "thigh", "shin")
+    assert robot.family_slots.tolist() == [0, 1, 2]
 
 
 # -------------------------------------------------------------------- known robots: order, types

@@ -8,7 +8,10 @@ Two vocabularies exist:
   it, so that a thigh is a thigh whichever robot it belongs to.
 
 SMPENV types are derived from body names, family by family, so that a robot file a user writes by
-hand (with the family's naming convention) gets the same types as the generated ones. UNIMAL limbs
+hand (with the family's naming convention) gets the same types as the generated ones. A limb whose
+name says nothing (``toe``, ``b3``, a new segment) is typed by its place in the tree instead: its
+segment position along its chain from the torso (1st: thigh, 2nd: shin, 3rd and beyond: foot), so
+that a new morphology is never refused for its names. UNIMAL limbs
 have no anatomical names (``limb/3``), so their type is their place in the body tree
 (:func:`unimal_limb_types`): *proximal* (attached to the torso), *inner* (deeper, with children)
 or *distal* (deeper, a leaf). Hip-like, knee-like and foot-like roles, the closest UNIMAL analogue
@@ -71,12 +74,19 @@ _RULES: dict[str, tuple[tuple[str, str, int], ...]] = {
 }
 
 
+#: global type of the 1st, 2nd and 3rd-or-deeper segment of a chain from the torso
+_BY_SEGMENT: tuple[str, ...] = ("thigh", "shin", "foot")
+
+
 class UnknownLimbError(ValueError):
-    """A body name matches no limb type of its family."""
+    """A body name matches no limb type of its family (and no segment position was given)."""
 
 
-def limb_type(family: str, body_name: str, is_root: bool) -> tuple[int, int]:
-    """Return ``(global_type_id, family_slot)`` of a body of ``family``."""
+def limb_type(
+    family: str, body_name: str, is_root: bool, segment: int | None = None
+) -> tuple[int, int]:
+    """Return ``(global_type_id, family_slot)`` of a body of ``family``: from its name, or, when
+    the name matches no rule of the family, from ``segment`` (its depth below the torso, >= 1)."""
     if is_root:
         return GLOBAL_TYPE_ID["torso"], 0
     if family not in _RULES:
@@ -84,6 +94,9 @@ def limb_type(family: str, body_name: str, is_root: bool) -> tuple[int, int]:
     for pattern, gtype, slot in _RULES[family]:
         if re.search(pattern, body_name):
             return GLOBAL_TYPE_ID[gtype], slot
+    if segment is not None and segment >= 1:
+        k = min(segment, len(_BY_SEGMENT))
+        return GLOBAL_TYPE_ID[_BY_SEGMENT[k - 1]], k
     raise UnknownLimbError(
         f"body {body_name!r} matches no limb type of family {family!r} "
         f"(expected names ending in: {', '.join(p for p, _, _ in _RULES[family])})"

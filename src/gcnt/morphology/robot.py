@@ -122,11 +122,132 @@ def _family_of(model: mujoco.MjModel, root: ET.Element, source: str) -> str:
 def load_robot(path: str | Path, catalogue: str | None = None) -> Robot:
     """Read a robot from an MJCF file (``catalogue``: see :func:`robot_from_xml`)."""
     path = Path(path)
+    text = _read_text(path, str(path))
+    return robot_from_xml(
+        text, source=str(path), name=path.stem, catalogue=catalogue, folder=path.parent
+    )
+
+
+def _read_text(path: Path, source: str) -> str:
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as e:
-        raise RobotFileError(f"{path}: cannot read robot file ({e.strerror})") from e
-    return robot_from_xml(text, source=str(path), name=path.stem, catalogue=catalogue)
+        raise RobotFileError(f"{source}: cannot read robot file ({e.strerror})") from e
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RobotFileError(f"{source}: not a text file (a robot file is MJCF XML)") from None
+
+
+#: attributes of <compiler> that prefix relative asset file names, by asset tag
+_ASSET_DIRS = {"texture": ("texturedir", "assetdir")}
+_DEFAULT_ASSET_DIRS = ("meshdir", "assetdir")
+
+
+def _inside(folder: Path, name: str, what: str, source: str) -> Path:
+    """``folder/name``, refused if ``name`` is absolute or leads out of ``folder``."""
+    if Path(name).is_absolute():
+        raise RobotFileError(
+            f"{source}: {what} {name!r} is an absolute path; a robot file may only use files in "
+            f"its own folder ({folder})"
+        )
+    path = (folder / name).resolve()
+    if not path.is_relative_to(folder.resolve()):
+        raise RobotFileError(
+            f"{source}: {what} {name!r} leads out of the robot's folder ({folder})"
+        )
+    return path
+
+
+def _resolve_files(root: ET.Element, folder: Path | None, source: str, depth: int = 0) -> bool:
+    """Inline every ``<include>`` and make asset file names absolute, both resolved against the
+    robot file's ``folder`` (not the current directory) and refused if they leave it. True if
+    the tree changed."""
+    includes = [(p, c) for p in root.iter() for c in p if c.tag == "include"]
+    compiler = root.find("compiler")
+    assets = [el for el in root.iter() if el.tag != "include" and el.get("file")]
+    if not includes and not assets:
+        return False
+    if folder is None:
+        raise RobotFileError(
+            f"{source}: <include> and asset files need the robot file's folder; load it from its "
+            "file"
+        )
+    if depth > 8:
+        raise RobotFileError(f"{source}: <include> files nest too deep (a cycle?)")
+    for parent, inc in includes:
+        name = inc.get("file") or ""
+        path = _inside(folder, name, "<include> file", source)
+        try:
+            inner = ET.fromstring(_read_text(path, f"{source}: <include> {name!r}"))
+        except ET.ParseError as e:
+            raise RobotFileError(f"{source}: <include> {name!r} is not valid XML ({e})") from None
+        if inner.tag != "mujoco":
+            raise RobotFileError(f"{source}: <include> {name!r} must have a <mujoco> root")
+        _resolve_files(inner, folder, source, depth + 1)
+        at = list(parent).index(inc)
+        parent.remove(inc)
+        for k, el in enumerate(list(inner)):
+            parent.insert(at + k, el)
+    for el in assets:
+        dirs = _ASSET_DIRS.get(el.tag, _DEFAULT_ASSET_DIRS)
+        prefix = next((compiler.get(d) for d in dirs if compiler is not None and compiler.get(d)), "")
+        name = str(Path(prefix) / el.get("file")) if prefix else el.get("file")
+        el.set("file", str(_inside(folder, name, f"{el.tag} file", source)))
+    return True
+
+
+#: (array, element kind, only where this boolean array is set) checked for NaN and infinity
+_FINITE_FIELDS = (
+    ("body_pos", "body", None), ("body_quat", "body", None), ("body_ipos", "body", None),
+    ("body_iquat", "body", None), ("body_mass", "body", None), ("body_inertia", "body", None),
+    ("geom_size", "geom", None), ("geom_pos", "geom", None), ("geom_quat", "geom", None),
+    ("geom_friction", "geom", None), ("jnt_pos", "joint", None), ("jnt_axis", "joint", None),
+    ("jnt_range", "joint", "jnt_limited"), ("jnt_stiffness", "joint", None),
+    ("dof_damping", "dof", None), ("dof_armature", "dof", None), ("dof_frictionloss", "dof", None),
+    ("actuator_gear", "actuator", None), ("actuator_gainprm", "actuator", None),
+    ("actuator_ctrlrange", "actuator", "actuator_ctrllimited"),
+)
+
+
+def _check_finite(model: mujoco.MjModel, source: str) -> None:
+    """NaN or infinite numbers compile, then blow the physics up: name the element instead."""
+    for field_name, kind, limited in _FINITE_FIELDS:
+        values = np.asarray(getattr(model, field_name))
+        if values.size == 0:
+            continue
+        bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+        if limited is not None:
+            bad &= np.asarray(getattr(model, limited)).astype(bool).reshape(-1)
+        if not bad.any():
+            continue
+        i = int(np.nonzero(bad)[0][0])
+        if kind == "dof":
+            kind, i = "joint", int(model.dof_jntid[i])
+        name = getattr(model, kind)(i).name or f"#{i}"
+        raise RobotFileError(
+            f"{source}: {kind} {name!r} has a non-finite {field_name.split('_', 1)[1]} "
+            f"({values[i].tolist()})"
+        )
+    if not (np.isfinite(model.opt.timestep) and np.isfinite(model.opt.gravity).all()):
+        raise RobotFileError(f"{source}: <option> has a non-finite timestep or gravity")
+
+
+def _check_motor_kind(model: mujoco.MjModel, a: int, source: str) -> None:
+    """A motor is what MuJoCo compiles from <motor> or a <general> without bias: force = gear x
+    control. Servos read the policy's output as a target position or velocity."""
+    gain, bias = int(model.actuator_gaintype[a]), int(model.actuator_biastype[a])
+    dyn = int(model.actuator_dyntype[a])
+    if (
+        gain != mujoco.mjtGain.mjGAIN_FIXED
+        or bias != mujoco.mjtBias.mjBIAS_NONE
+        or dyn == mujoco.mjtDyn.mjDYN_INTEGRATOR
+    ):
+        raise RobotFileError(
+            f"{source}: actuator {model.actuator(a).name or f'#{a}'!r} is a servo (a position, "
+            "velocity or biased actuator), not a motor; gcnt's policies output motor torques: "
+            "write it as <motor> or as <general> without bias"
+        )
 
 
 def _check_motors(root: ET.Element, source: str) -> None:
@@ -187,19 +308,29 @@ def _slots_by_axis(
 
 
 def robot_from_xml(
-    text: str, source: str = "<string>", name: str | None = None, catalogue: str | None = None
+    text: str,
+    source: str = "<string>",
+    name: str | None = None,
+    catalogue: str | None = None,
+    folder: Path | None = None,
 ) -> Robot:
     """Read a robot from MJCF text. ``name`` defaults to the model attribute; ``catalogue`` to
-    the catalogue of the robot's family ("unimal" for UNIMAL robots, else "smpenv")."""
+    the catalogue of the robot's family ("unimal" for UNIMAL robots, else "smpenv"); ``folder``
+    is the robot file's folder, against which ``<include>`` and asset files resolve (files
+    outside it are refused)."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
         raise RobotFileError(f"{source}: not valid XML ({e})") from e
+    if _resolve_files(root, folder, source):
+        text = ET.tostring(root, encoding="unicode")  # self-contained: compiles anywhere
     _check_motors(root, source)
     try:
         model = mujoco.MjModel.from_xml_string(text)
     except ValueError as e:
-        raise RobotFileError(f"{source}: MuJoCo cannot compile it: {e}") from e
+        detail = "; ".join(line.strip() for line in str(e).splitlines() if line.strip())
+        raise RobotFileError(f"{source}: MuJoCo cannot compile it: {detail}") from None
+    _check_finite(model, source)
     name = name or root.get("model") or "robot"
     family = _family_of(model, root, source)
 
@@ -231,10 +362,14 @@ def robot_from_xml(
             f"{max_limbs}"
         )
     by_tree = unimal_limb_types(parents.tolist()) if family == "unimal" else None
+    depth = [0] * len(order)  # segment position along the chain from the torso
+    for i in range(1, len(order)):
+        depth[i] = depth[int(parents[i])] + 1
 
     motor_of: dict[int, int] = {}
     for a in range(model.nu):
         if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+            _check_motor_kind(model, a, source)
             motor_of[int(model.actuator_trnid[a, 0])] = a
 
     max_j = MAX_JOINTS_PER_LIMB[family]
@@ -280,7 +415,7 @@ def robot_from_xml(
             g, s = by_tree[i]
         else:
             try:
-                g, s = limb_type(family, bname, is_root=i == 0)
+                g, s = limb_type(family, bname, is_root=i == 0, segment=depth[i])
             except UnknownLimbError as e:
                 raise RobotFileError(f"{source}: {e}") from e
         gtypes.append(g)
