@@ -208,7 +208,8 @@ def test_a_toy_benchmark_and_algorithm_train_and_evaluate_through_gcnt(tmp_path)
 def test_toy_sections_are_validated_only_when_active(tmp_path):
     with pytest.raises(RecipeError, match="lr must be > 0"):
         toy_recipe(tmp_path, toy={"lr": -1.0})
-    r = toy_recipe(tmp_path, algo="td3")  # the toy section stays as written
+    # the toy section stays as written (td3 explores randomly for fewer than the 400 frames)
+    r = toy_recipe(tmp_path, algo="td3", td3={"init_random_frames": 100})
     assert r.sections["toy"] == {"lr": 1e-2}
     with pytest.raises(RecipeError, match="unknown benchmark 'toyy'; did you mean 'toy'"):
         train(toy_recipe(tmp_path, env={"benchmark": "toyy", "robots": ["hopper_3"]}),
