@@ -126,8 +126,8 @@ def test_replay_checkpoint_round_trip(tmp_path):
 # ------------------------------------------------------------------------ learner vs TD3Loss
 
 
-def _double_learner(recipe_overrides=()):
-    recipe = load_recipe(QUICK, [NET, *recipe_overrides])
+def _double_learner(recipe_overrides=(), net=NET):
+    recipe = load_recipe(QUICK, [net, *recipe_overrides])
     robots = train_robots(recipe)
     env = make_env(recipe, robots)
     data = env.rollout(10, break_when_any_done=False)
@@ -208,6 +208,21 @@ def test_fast_critic_and_actor_losses_equal_torchrl_td3loss_float64():
 def _again(learner, batch):
     torch.manual_seed(0)
     return learner.critic_loss(batch)
+
+
+@pytest.mark.parametrize("method", ["amorpheus", "swat", "smp", "metamorph", "mlp"])
+def test_every_method_gives_torchrl_td3loss_losses(method):
+    net = "network.kwargs={}" if method in ("smp", "mlp") else NET
+    recipe, learner, batch = _double_learner([f"network.name={method}"], net)
+    ref = _reference(recipe, learner)
+    torch.manual_seed(0)
+    q_ref = critic_loss(ref, learner.actor[0](batch.clone()))
+    torch.manual_seed(0)
+    torch.testing.assert_close(learner.critic_loss(batch), q_ref, rtol=1e-11, atol=1e-12)
+    torch.manual_seed(1)  # MetaMorph has dropout: the same draws in both
+    a_ref = actor_loss(ref, learner.actor[0](batch.clone()))
+    torch.manual_seed(1)
+    torch.testing.assert_close(learner.actor_loss(batch), a_ref, rtol=1e-11, atol=1e-12)
 
 
 def test_paper_schedule_batches_of_one_robot_equal_too():

@@ -243,7 +243,7 @@ class UpdateSchedule:
         self.pending[:] = 0
 
     def state_dict(self) -> dict[str, Any]:
-        return {"pending": self.pending.copy(), "finished": self.finished.copy()}
+        return {"pending": self.pending.tolist(), "finished": self.finished.tolist()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.pending[:] = state["pending"]

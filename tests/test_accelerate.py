@@ -1,0 +1,51 @@
+"""torch.compile of the TD3 update steps on a CPU (the ``compile:`` recipe section).
+
+Compiling takes minutes on a small shared CPU, so this runs only when asked:
+``GCNT_TEST_COMPILE=1 pytest tests/test_accelerate.py``. The switches themselves (accepted,
+CUDA-only ones rejected on a CPU) are tested in tests/test_td3_fast.py.
+"""
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+from gcnt.recipes import load_recipe
+from gcnt.rl import replay as rb
+from gcnt.rl.factories import make_env, train_robots
+from gcnt.rl.td3 import TD3Learner
+
+QUICK = Path(__file__).parents[1] / "recipes/quickstart.yaml"
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        os.environ.get("GCNT_TEST_COMPILE") != "1",
+        reason="compiling takes minutes on a CPU; set GCNT_TEST_COMPILE=1 to run",
+    ),
+]
+
+
+def test_compiled_td3_steps_match_eager_on_cpu():
+    over = ["network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}", "td3.policy_delay=1"]
+    recipe = load_recipe(QUICK, over)
+    compiled = load_recipe(QUICK, [*over, "compile.compile=true"])
+    env = make_env(recipe, train_robots(recipe))
+    data = env.rollout(10, break_when_any_done=False)
+    replay = rb.RobotReplay(3, capacity=30, batch_size=6)
+    replay.extend(data)
+    batch = replay.sample_mixed()
+    torch.manual_seed(0)
+    eager = TD3Learner(recipe, env)
+    torch.manual_seed(0)
+    fast = TD3Learner(compiled, env)
+    env.close()
+    for _ in range(3):
+        torch.manual_seed(1)
+        a = eager.update(batch)
+        torch.manual_seed(1)
+        b = fast.update(batch)
+        assert a.keys() == b.keys()
+        for k in a:
+            assert abs(a[k] - b[k]) <= 1e-4 * (1 + abs(a[k])), (k, a[k], b[k])
