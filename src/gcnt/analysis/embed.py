@@ -88,7 +88,14 @@ def structural_vectors(
         **(kwargs or {}),
     )
     if actor_state is not None:
-        missing, unexpected = actor.load_state_dict(actor_state, strict=False)
+        try:
+            missing, unexpected = actor.load_state_dict(actor_state, strict=False)
+        except RuntimeError as e:  # shapes differ: a checkpoint from another gcnt version
+            detail = " ".join(str(e).split("\n")[1:2]).strip()
+            raise AnalysisError(
+                f"{title or method}: the checkpoint's actor does not fit the network built "
+                f"here ({detail})"
+            ) from None
         missing = [k for k in missing if not k.rsplit(".", 1)[-1].startswith("table_")]
         if missing or unexpected:
             raise AnalysisError(

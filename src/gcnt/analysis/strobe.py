@@ -33,7 +33,10 @@ def _policy_and_env(run: Run, robot: str, seed: int):
     robots = resolve_robots([robot])
     train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
     max_limbs = max(train_k, *(r.num_limbs for r in robots))
-    env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs, num_threads=1)
+    try:
+        env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs, num_threads=1)
+    except TypeError:  # make_env without num_threads (runs from before the algorithm seam)
+        env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs)
     try:
         from gcnt.rl.algorithm import get_algorithm
     except ImportError:  # older layout: a TD3 actor's weights under "actor"
@@ -52,10 +55,8 @@ def rollout_poses(run: Run, robot: str = DEFAULT_ROBOT, steps: int = 300, seed: 
     import torch
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    from gcnt.rl.factories import base_env
-
     policy, env = _policy_and_env(run, robot, seed)
-    model, data = base_env(env).sim(0)
+    model, data = getattr(env, "base_env", env).sim(0)  # under the TransformedEnv
     poses = []
     ret = 0.0
     td = env.reset()
