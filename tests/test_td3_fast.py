@@ -10,6 +10,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
+from gcnt.nn.keys import ACTION, OBS
 from gcnt.recipes import RecipeError, load_recipe
 from gcnt.rl import replay as rb
 from gcnt.rl.factories import make_env, train_robots
@@ -17,7 +18,7 @@ from gcnt.rl.loop import train
 from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3 import TD3Learner
 from gcnt.rl.td3_loss import actor_loss, critic_loss, make_td3_loss
-from gcnt.rl.tensor_chain import TensorChain
+from gcnt.rl.tensor_chain import TensorChain, TensorChainModule
 
 ROOT = Path(__file__).parents[1]
 QUICK = ROOT / "recipes/quickstart.yaml"
@@ -247,6 +248,21 @@ def test_robot_only_stages_run_once_per_robot():
     chain = TensorChain(TD3Learner(recipe, env).critics[0])
     per_robot = {type(st.module.module).__name__ for st in chain.stages if st.per_robot}
     assert per_robot == {"LimbGCN", "DistanceBias"}
+    env.close()
+
+
+def test_policy_module_acts_like_the_chain_on_env_output():
+    recipe = load_recipe(QUICK, [NET])
+    env = make_env(recipe, train_robots(recipe))
+    actor = TD3Learner(recipe, env).actor.double()
+    td = env.reset().apply(lambda t: t.double() if t.is_floating_point() else t)
+    fast = TensorChainModule(actor, [ACTION])
+    assert fast.in_keys == ["morph_id", OBS]
+    a = fast(td.clone())[ACTION]
+    torch.testing.assert_close(a, actor(td.clone())[ACTION], rtol=1e-12, atol=1e-12)
+    # any leading batch dims
+    two = torch.stack([td, td]).clone()
+    assert fast(two)[ACTION].shape == (2, *a.shape)
     env.close()
 
 

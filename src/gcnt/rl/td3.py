@@ -49,7 +49,7 @@ from gcnt.rl.td3_loss import (
     td_target,
     twin_critic_loss,
 )
-from gcnt.rl.tensor_chain import TensorChain
+from gcnt.rl.tensor_chain import TensorChain, TensorChainModule
 
 log = logging.getLogger(__name__)
 
@@ -286,7 +286,7 @@ class TD3(Algorithm):
     def collect_settings(self, env_steps: int) -> CollectSettings:
         c, device = self.config, self.recipe.device
         explore = TensorDictSequential(
-            self.learner.actor,
+            TensorChainModule(self.learner.actor, [ACTION]),  # the actor, at less call cost
             AdditiveGaussianModule(
                 self.env.full_action_spec[ACTION].to(device),
                 sigma_init=c.exploration_noise,
@@ -381,10 +381,11 @@ class TD3(Algorithm):
         actor = make_net(recipe, env, "td3_actor")
         _load_weights(actor, state["actor"])
         actor.eval()
+        fast = TensorChainModule(actor, [ACTION])
         if deterministic:
-            return actor
+            return fast
         return TensorDictSequential(
-            actor,
+            fast,
             AdditiveGaussianModule(
                 env.full_action_spec[ACTION].to(recipe.device),
                 sigma_init=recipe.algo_config.exploration_noise,

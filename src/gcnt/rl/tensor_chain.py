@@ -20,11 +20,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import Tensor, nn
 
 from gcnt.nn.graph_lookup import GraphLookup
+from gcnt.nn.keys import MORPH_ID
 
 Key = str | tuple[str, ...]
 
@@ -177,3 +178,41 @@ class TensorChain:
                 for k, v in zip(st.out_keys, out, strict=True):
                     dest[k] = v
         return env
+
+
+class TensorChainModule(TensorDictModuleBase):
+    """A chain as a TensorDictModule that runs :class:`TensorChain` inside: the same inputs and
+    outputs as the chain (its final keys), the same parameters, a fraction of the call cost. For
+    the collector's and the evaluator's policy calls, which run every environment step.
+
+    Args:
+        chain: the chain (a TensorDictSequential starting with its GraphLookup).
+        out_keys: the keys to write back (e.g. ``[("limbs", "action")]``).
+    """
+
+    def __init__(self, chain: TensorDictModuleBase, out_keys: list) -> None:
+        super().__init__()
+        self.chain = chain
+        self.fn = TensorChain(chain)
+        table = set(self.fn.table_keys)
+        self.inputs = [
+            _key(k) for k in chain.in_keys if _key(k) != MORPH_ID and _key(k) not in table
+        ]
+        self.in_keys = [MORPH_ID, *self.inputs]
+        self.out_keys = [_key(k) for k in out_keys]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        ids = tensordict.get(MORPH_ID)
+        lead = tensordict.batch_size
+        robots = self.fn.robot_batch(ids)
+        n = robots.ids.shape[0]
+        inputs = {}
+        for k in self.inputs:
+            v = tensordict.get(k, None)
+            if v is not None:
+                inputs[k] = v.reshape(n, *v.shape[len(lead):])
+        out = self.fn(inputs, robots)
+        for k in self.out_keys:
+            v = out[k]
+            tensordict.set(k, v.reshape(*lead, *v.shape[1:]))
+        return tensordict
