@@ -296,6 +296,16 @@ def test_a_diverging_run_stops_and_keeps_its_last_good_checkpoint(tmp_path, reci
     assert all(math.isfinite(v) for r in RunDir(run).read_metrics() for v in r.values())
 
 
+def test_only_losses_stop_a_run_not_diagnostics_that_may_be_nan(tmp_path):
+    from gcnt.rl.loop import TrainingDivergedError, _check_losses
+
+    run = RunDir(tmp_path / "run")
+    _check_losses(run, {"loss_critic": 1.0, "explained_variance": math.nan,
+                        "value_clip_fraction": math.nan}, 10, 1)
+    with pytest.raises(TrainingDivergedError, match="loss_policy is inf at update 3"):
+        _check_losses(run, {"loss_policy": math.inf}, 10, 3)
+
+
 def test_a_nan_injected_after_a_checkpoint_stops_the_run_which_resumes_from_it(
     tmp_path, recipe_file, capsys, monkeypatch
 ):

@@ -192,8 +192,8 @@ def train(
                     for losses in algo.process(data, env_steps):
                         stats.add_losses(losses)
                         _check_losses(run, losses, env_steps, algo.updates)
-                    bad = _non_finite(algo.policy_state())  # before it acts again
-                    if bad:
+                    if not _all_finite(algo.policy_state()):  # before the policy acts again
+                        bad = _non_finite(algo.policy_state())
                         raise _diverged(run, f"non-finite policy weights in {bad}", env_steps)
                     if multi:
                         collector.update_policy_weights_()
@@ -256,9 +256,10 @@ def _diverged(run: RunDir, what: str, env_steps: int) -> TrainingDivergedError:
 
 
 def _check_losses(run: RunDir, losses: dict, env_steps: int, updates: int) -> None:
-    """Stop at the first update whose losses are NaN or infinite."""
+    """Stop at the first update whose losses (keys ``loss*``) are NaN or infinite; other
+    diagnostics (explained variance, clip fractions) may be NaN legitimately."""
     for key, value in losses.items():
-        if not math.isfinite(float(value)):
+        if key.startswith("loss") and not math.isfinite(float(value)):
             raise _diverged(run, f"{key} is {float(value)} at update {updates}", env_steps)
 
 
@@ -278,6 +279,22 @@ def _checkpoint(run: RunDir, algo: Algorithm, env_steps: int) -> None:
             "has_buffers": has_buffers,
         }
     )
+
+
+def _all_finite(state) -> bool:
+    """Whether every floating-point tensor of a (nested) state dict is finite (one device sync)."""
+    flags = []
+    stack = [state]
+    while stack:
+        x = stack.pop()
+        if isinstance(x, torch.Tensor):
+            if x.is_floating_point():
+                flags.append(torch.isfinite(x).all())
+        elif isinstance(x, dict):
+            stack.extend(x.values())
+        elif isinstance(x, (list, tuple)):
+            stack.extend(x)
+    return not flags or bool(torch.stack(flags).all())
 
 
 def _non_finite(state, prefix: str = "") -> str | None:
