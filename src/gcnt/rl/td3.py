@@ -57,9 +57,9 @@ log = logging.getLogger(__name__)
 class TD3Learner:
     """Networks, optimisers and the update steps; no env, no buffer (benchmarkable alone).
 
-    The actor and the two critics are the method's TensorDict chains (the collector runs the
-    actor as such); the update calls the same modules on plain tensors (:class:`TensorChain`),
-    with robot-only stages computed once per robot. Targets are copies of the online networks,
+    The actor and the two critics are the method's TensorDict chains; the update calls the same
+    modules on plain tensors (:class:`TensorChain`), with robot-only stages computed once per
+    robot, and the collector runs the actor the same way (:class:`TensorChainModule`). Targets are copies of the online networks,
     moved towards them by ``tau`` after each actor update. Two steps with static shapes, so each
     can be compiled and captured (``compile:`` recipe section, :mod:`gcnt.rl.accelerate`): the
     critic step, and the actor + target step that runs every ``policy_delay`` critic steps.

@@ -25,6 +25,7 @@ from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequ
 from torch import Tensor, nn
 
 from gcnt.nn.graph_lookup import GraphLookup
+from gcnt.nn.graph_lookup import _buffer_name as table_buffer_name
 from gcnt.nn.keys import MORPH_ID
 
 Key = str | tuple[str, ...]
@@ -121,11 +122,12 @@ class TensorChain:
         if self.lookup is None:
             raise ValueError("TensorChain: the chain has no GraphLookup at its head")
         self.table_keys: list[Key] = [_key(k) for k in self.lookup.keys]
+        self._table_buffers = [(_key(k), table_buffer_name(k)) for k in self.lookup.keys]
 
     def table(self) -> dict[Key, Tensor]:
-        """The lookup's robot table, per robot (follows the module's device and dtype)."""
-        tab = self.lookup.table()
-        return {k: tab.get(k) for k in self.table_keys}
+        """The lookup's robot table, per robot: its buffers, read at each call so that they
+        follow the module's ``.to()`` and ``set_table`` (no TensorDict built: compile-friendly)."""
+        return {k: getattr(self.lookup, name) for k, name in self._table_buffers}
 
     def robot_batch(self, ids: Tensor, *others: TensorChain) -> RobotBatch:
         """The :class:`RobotBatch` of samples with robots ``ids``, for this chain and ``others``
