@@ -18,9 +18,10 @@ from gcnt.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICKSTART = ROOT / "recipes" / "quickstart.yaml"
-# stable recipe keys only: a tiny, all-random-action run (no updates) of one small robot
+# a tiny run of one small robot: 200 random steps, then 100 with updates
 TINY = [
     "collector.total_frames=300",
+    "td3.init_random_frames=200",
     "checkpoint_interval=100",
     "env.robots=[hopper_3]",
     "env.test_robots=[hopper_4]",
