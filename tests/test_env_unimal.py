@@ -153,6 +153,23 @@ def test_observation_matches_mjdata(robots, world):
     env.close()
 
 
+def test_metamorph_layout_file(robots):
+    """A hand-written file in MetaMorph's layout (y hinge listed before x) in a terrain world."""
+    from pathlib import Path
+
+    from gcnt.morphology import load_robot
+
+    fixture = Path(__file__).parent / "data" / "unimal" / "unimal_fixture.xml"
+    robot = load_robot(fixture)
+    env = UnimalEnv([robot, robots[1]], max_limbs=12, world="obstacles", seed=2, num_threads=1)
+    _random_steps(env, 3)
+    model, data = env.sim(0)
+    np.testing.assert_allclose(
+        env._featurizer.features()[0], _expected_obs(model, data, robot, 12), rtol=1e-9, atol=1e-9
+    )
+    env.close()
+
+
 def test_action_slots_drive_their_hinges(robots):
     env = UnimalEnv(robots[:1], world="ft", seed=0, num_threads=1)
     env.reset()
