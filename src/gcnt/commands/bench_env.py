@@ -13,7 +13,10 @@ load from other processes hits both alike):
     comparable states). No observations, no torch.
 
 and prints both and their ratio (env / raw; above 1 means the env's threads hide featurisation and
-TorchRL overhead behind parallel physics).
+TorchRL overhead behind parallel physics). On worlds with a height map (UNIMAL MT and Obstacles)
+it also prints the height map's share of the env's step time. The robots default to the
+benchmark's training split (``Benchmark.train_split``: CWHH++:train, Unimal:train), one sub-env
+each; ``--world`` picks the benchmark's world.
 """
 
 from __future__ import annotations
