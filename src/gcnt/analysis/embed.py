@@ -37,17 +37,10 @@ class Embedding:
 
 def _widths(benchmark: str) -> tuple[int, int, str]:
     """(limb observation width, action slots, size preset) of a benchmark."""
-    try:
-        from gcnt.envs.benchmark import get_benchmark
+    from gcnt.envs.benchmark import get_benchmark
 
-        b = get_benchmark(benchmark)
-        if b.limb_obs_dim:
-            return b.limb_obs_dim, b.action_slots, b.preset
-    except (ImportError, ValueError):
-        pass
-    from gcnt.rl import factories
-
-    return factories.OBS_DIM, factories.NUM_ACTIONS, "smpenv"
+    b = get_benchmark(benchmark)
+    return b.limb_obs_dim, b.action_slots, b.preset
 
 
 def structural_vectors(
