@@ -17,7 +17,11 @@ from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3_loss import PerRobotTD0, masked_mean
 
 ROOT = Path(__file__).parents[1]
-RECIPES = sorted(p for p in (ROOT / "recipes").rglob("*.yaml") if not p.name.startswith("_"))
+RECIPES = sorted(
+    p
+    for p in (ROOT / "recipes").rglob("*.yaml")
+    if not p.name.startswith("_") and load_recipe(p).algo == "td3"  # PPO: tests/test_ppo.py
+)
 
 TINY = [
     "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}",
