@@ -44,7 +44,7 @@ def test_base_is_merged_section_by_section():
     [
         ("td3.lrr=1", "unknown recipe key 'td3.lrr'; did you mean 'lr'?"),
         ("seeds=1", "did you mean 'seed'?"),
-        ("collecter.total_frames=5", "did you mean 'collector'?"),
+        ("collecter.total_frames=5", "did you mean 'collector'"),
         ("td3.schedule=fast", "'fast' is not one of 'paper', 'mixed'"),
         ("seed=abc", "seed: expected int"),
         ("td3=3", "expected a mapping"),
