@@ -68,6 +68,7 @@ class RobotReplay:
         self.cursor = torch.zeros(num_robots, dtype=torch.long)  # next slot per robot (CPU)
         self.sizes = torch.zeros(num_robots, dtype=torch.long)  # filled slots per robot (CPU)
         self._robot_offset = torch.arange(num_robots, device=self.device) * capacity
+        self._sizes_dev = self.sizes.to(self.device)  # for sampling without a host copy
 
     # ------------------------------------------------------------------ filling
     def __len__(self) -> int:
@@ -118,6 +119,7 @@ class RobotReplay:
             store[dest] = flat.get(key).index_select(0, src).to(self.device, store.dtype)
         self.cursor = (self.cursor + counts) % self.capacity
         self.sizes = torch.clamp(self.sizes + counts, max=self.capacity)
+        self._sizes_dev = self.sizes.to(self.device)
         return n
 
     # ------------------------------------------------------------------ sampling
@@ -146,7 +148,7 @@ class RobotReplay:
         (one ``rand`` and one gather per key)."""
         self._check(torch.arange(self.num_robots))
         b = batch_size or self.batch_size
-        sizes = self.sizes.to(self.device)
+        sizes = self._sizes_dev
         idx = (torch.rand(self.num_robots, b, device=self.device) * sizes[:, None]).long()
         idx = torch.minimum(idx, (sizes - 1)[:, None])  # rand() * n may round up to n
         return self._gather((idx + self._robot_offset[:, None]).reshape(-1))
@@ -174,6 +176,7 @@ class RobotReplay:
                 f"transitions; this run has {self.num_robots} x {self.capacity}"
             )
         self.cursor, self.sizes = state["cursor"].clone(), state["sizes"].clone()
+        self._sizes_dev = self.sizes.to(self.device)
         self.storage, self.keys, self._flat = None, [], []
         if state["data"] is None:
             return
