@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 from torchrl.modules import AdditiveGaussianModule
@@ -134,19 +134,22 @@ class TD3Learner:
             q1 = self.f_critics[0](now, robots)[LIMB_Q]
             return deterministic_actor_loss(q1, robots.gathered(MASK)).to(now[OBS].dtype)
 
-    def _critic_step(self, batch: TensorDictBase) -> torch.Tensor:
-        """One critic update on ``batch``; returns the (detached) critic loss."""
+    # Both steps take and return TensorDicts (what a CUDA graph captures) and leave no gradient
+    # behind (zeroed after the optimiser step, as a captured graph needs).
+    def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
+        """One critic update on ``batch``; returns ``loss_critic``."""
         o = self.config
         loss = self.critic_loss(batch)
-        self.critic_opt.zero_grad(set_to_none=True)
         loss.backward()
         if o.max_grad_norm > 0:
             torch.nn.utils.clip_grad_norm_(self.critic_params, o.max_grad_norm, foreach=True)
         self.critic_opt.step()
-        return loss.detach()
+        self.critic_opt.zero_grad(set_to_none=True)
+        return TensorDict({"loss_critic": loss.detach()})
 
-    def _actor_step(self, batch: TensorDictBase) -> torch.Tensor:
-        """One actor update (critic 1 fixed) and the soft target update; returns the loss."""
+    def _actor_step(self, batch: TensorDictBase) -> TensorDictBase:
+        """One actor update (critic 1 fixed) and the soft target update; returns
+        ``loss_actor``."""
         o = self.config
         loss = self.actor_loss(batch)
         # gradients for the actor only (the critic is a fixed function here)
@@ -156,20 +159,21 @@ class TD3Learner:
         if o.max_grad_norm > 0:
             torch.nn.utils.clip_grad_norm_(self.actor_params, o.max_grad_norm, foreach=True)
         self.actor_opt.step()
+        self.actor_opt.zero_grad(set_to_none=True)
         with torch.no_grad():
             torch._foreach_lerp_(self._target, self._online, o.tau)
-        return loss.detach()
+        return TensorDict({"loss_actor": loss.detach()})
 
     def step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One critic update, plus an actor and target update every ``policy_delay`` calls;
         the losses stay tensors on the device (no synchronisation)."""
         batch = batch.to(self.device) if batch.device != self.device else batch
         begin_step(self.accel)
-        out = {"loss_critic": self.critic_step(batch)}
+        out = {"loss_critic": self.critic_step(batch)["loss_critic"]}
         self.updates += 1
         if self.updates % self.config.policy_delay == 0:
             begin_step(self.accel)
-            out["loss_actor"] = self.actor_step(batch)
+            out["loss_actor"] = self.actor_step(batch)["loss_actor"]
         return out
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
