@@ -31,7 +31,8 @@ class TD3Config:
     buffer_total_size: int = 4_000_000
     #: mini-batch size (per robot, also in the mixed schedule)
     batch_size: int = 100
-    #: also checkpoint the replay buffers (large; makes resume exact)
+    #: also checkpoint the replay (large; makes resume exact): checkpoints/buffers/replay-<N>.pt,
+    #: written atomically next to the checkpoint that names it
     checkpoint_buffers: bool = False
     # --- optimisation
     #: Adam learning rate of actor and critic
