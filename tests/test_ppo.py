@@ -5,6 +5,7 @@ with bootstrapped timeouts (by hand, float64)."""
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from tensordict.nn import TensorDictModule
 from gcnt.cli import main as gcnt
 from gcnt.envs.smpenv import SMPEnv
 from gcnt.morphology.benchmarks import resolve_robots
-from gcnt.recipes import recipe_from_dict
+from gcnt.recipes import load_recipe, recipe_from_dict
 from gcnt.rl.evaluate import summarize_robots
 from gcnt.rl.loop import prepare
 from gcnt.rl.normalize import ObsNormalizer, RewardScaler
@@ -299,3 +300,44 @@ def test_robot_draw_is_picklable_and_shares_probabilities():
     probs = RobotSampler.uniform_probs(4)
     d = pickle.loads(pickle.dumps(RobotDraw(probs, 3)))
     assert d(np.arange(5)).shape == (5,)
+
+
+ROOT = Path(__file__).parents[1]
+PPO_RECIPES = sorted(
+    p
+    for p in (ROOT / "recipes").rglob("*.yaml")
+    if not p.name.startswith("_") and load_recipe(p).algo == "ppo"  # TD3: tests/test_td3.py
+)
+
+
+@pytest.mark.parametrize("path", PPO_RECIPES, ids=lambda p: str(p.relative_to(ROOT / "recipes")))
+def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
+    """Each PPO recipe (its world, height map and method) on two robots, a few steps."""
+    from gcnt.rl.loop import train
+
+    recipe = load_recipe(path, [
+        f"run_dir={tmp_path / 'run'}", "env.robots=[unimal_0000, unimal_0001]",
+        "env.test_robots=[]", "env.max_episode_steps=8", "env.num_threads=1",
+        "ppo.num_envs=2", "ppo.steps_per_env=6", "ppo.minibatch_size=6", "ppo.epochs=1",
+        "collector.total_frames=24", "logger.backend=none", "logger.progress=false",
+        "logger.log_interval=12", "eval.episodes=1", "eval.robots=[unimal_0000]",
+        "checkpoint_interval=12",
+        *([] if load_recipe(path).network.name == "sr" else [
+            "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}"]),
+    ])
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    rows = run.read_metrics()
+    assert rows[-1]["env_steps"] >= 24 and rows[-1]["updates"] > 0
+    assert list((run.path / "eval").glob("step*.json"))
+
+
+def test_kl_thresholds_per_method_and_world_follow_table_5():
+    expect = {"ft": (0.05, 0.05, 0.05), "incline": (0.03, 0.05, 0.05),
+              "mt": (0.03, 0.03, 0.03), "obstacles": (0.03, 0.03, 0.03)}
+    for world, values in expect.items():
+        for method, kl in zip(("metamorph_star", "modumorph", "gcnt"), values, strict=True):
+            r = load_recipe(ROOT / f"recipes/unimal/{world}.yaml", [f"network.name={method}"])
+            assert r.ppo.kl_threshold(method) == kl, (world, method)
+            assert r.env.world == world and r.env.benchmark == "unimal"
