@@ -22,7 +22,7 @@ from gcnt.rl.loop import prepare
 from gcnt.rl.normalize import ObsNormalizer, RewardScaler
 from gcnt.rl.ppo import PPO, NormalizedPolicy, lr_factor, make_gae
 from gcnt.rl.ppo_config import PPOConfig
-from gcnt.rl.robot_sampler import RobotDraw, RobotSampler
+from gcnt.rl.robot_sampler import RobotDraw, RobotSampler, shared_probs
 from gcnt.rl.run_dir import RunDir
 
 TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
@@ -169,12 +169,12 @@ def test_robot_sampler_uniform_then_inverse_episode_length():
     draw = s.drawer(seed=0)
     s.add_episodes([0] * 10 + [1] * 10, [100] * 10 + [400] * 10)
     s.end_iteration()
-    assert np.allclose(s.probs.numpy(), 1 / 3)  # still uniform in the first iterations
+    assert np.allclose(np.asarray(s.probs), 1 / 3)  # still uniform in the first iterations
     s.add_episodes([0, 1], [200, 400])  # past the warm-up: EMA
     s.end_iteration()
     ema = np.array([0.1 * 200 + 0.9 * 100, 400.0, (110 + 400) / 2])  # robot 2: mean of the others
     w = 1000 / ema
-    assert np.allclose(s.probs.numpy(), w / w.sum())
+    assert np.allclose(np.asarray(s.probs), w / w.sum())
     assert np.allclose(s.ema[:2], ema[:2])
     # the env-side drawer reads the same (shared) probabilities
     picks = draw(np.arange(20000))
@@ -266,7 +266,7 @@ def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp
                            b.algo.learner.actor.state_dict().values(), strict=True):
         assert torch.equal(va, vb), k
     assert torch.equal(a.algo.learner.obs_norm.mean, b.algo.learner.obs_norm.mean)
-    assert np.array_equal(a.algo.sampler.probs.numpy(), b.algo.sampler.probs.numpy())
+    assert np.array_equal(np.asarray(a.algo.sampler.probs), np.asarray(b.algo.sampler.probs))
     # evaluation rebuilds the normalised policy from policy_state, statistics frozen
     norm = a.algo.learner.obs_norm
     assert not torch.equal(norm.mean, torch.zeros_like(norm.mean))
@@ -294,12 +294,18 @@ def test_summarize_robots_bootstrap_ci():
     assert summarize_robots({"a": {"mean": 2.0}})["ci95_low"] == 2.0
 
 
-def test_robot_draw_is_picklable_and_shares_probabilities():
+def test_robot_draw_pickles_as_a_view_of_the_shared_probabilities():
+    """Envs in worker processes (a multi-process collector) follow the trainer's updates."""
     import pickle
 
-    probs = RobotSampler.uniform_probs(4)
-    d = pickle.loads(pickle.dumps(RobotDraw(probs, 3)))
-    assert d(np.arange(5)).shape == (5,)
+    import cloudpickle
+
+    probs = shared_probs(4)
+    for dumps in (pickle.dumps, cloudpickle.dumps):
+        d = pickle.loads(dumps(RobotDraw(probs, 3)))
+        probs[:] = [0.0, 0.0, 1.0, 0.0]
+        assert d(np.arange(5)).tolist() == [2] * 5
+        probs[:] = 0.25
 
 
 ROOT = Path(__file__).parents[1]

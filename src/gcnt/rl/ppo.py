@@ -49,7 +49,7 @@ from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.factories import base_env, benchmark_of, env_widths, make_env, make_net
 from gcnt.rl.normalize import ObsNormalizer, RewardScaler
 from gcnt.rl.ppo_config import PPOConfig
-from gcnt.rl.robot_sampler import RobotDraw, RobotSampler
+from gcnt.rl.robot_sampler import RobotDraw, RobotSampler, shared_probs
 
 log = logging.getLogger(__name__)
 
@@ -332,7 +332,7 @@ class PPO(Algorithm):
         o: PPOConfig = recipe.algo_config
         draw = None
         if o.robot_sampling == "sampled":
-            draw = RobotDraw(RobotSampler.uniform_probs(len(robots)), seed=recipe.seed + 1)
+            draw = RobotDraw(shared_probs(len(robots)), seed=recipe.seed + 1)
         return make_slot_env(recipe, robots, o.num_envs, draw=draw, seed=recipe.seed)
 
     def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:

@@ -8,27 +8,60 @@ probability proportional to ``1000 / ema_i``, where ``ema_i`` is the mean of rob
 episode. A robot with fewer episodes uses the mean of those it has; one with none, the mean of
 the others' (no evidence either way).
 
-The probabilities live in a shared-memory tensor; :meth:`RobotSampler.drawer` gives the env a
-small picklable callable (:class:`RobotDraw`, its own random stream) that reads them, so envs in
-worker processes (a multi-process collector) follow the updates made in the trainer process.
+The probabilities live in a small memory-mapped file (:func:`shared_probs`); the env draws
+through :class:`RobotDraw` (its own random stream), which pickles as the file's path, so envs in
+worker processes (a multi-process collector) read the updates made in the trainer process.
 """
 
 from __future__ import annotations
 
+import os
+import tempfile
+import weakref
+
 import numpy as np
-import torch
+
+
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def shared_probs(num_robots: int) -> np.memmap:
+    """Uniform probabilities in a memory-mapped file, removed when the array is collected."""
+    folder = "/dev/shm" if os.path.isdir("/dev/shm") else None
+    fd, path = tempfile.mkstemp(prefix="gcnt-robot-probs-", suffix=".f64", dir=folder)
+    os.close(fd)
+    probs = np.memmap(path, np.float64, "w+", shape=(num_robots,))
+    probs[:] = 1.0 / num_robots
+    weakref.finalize(probs, _unlink, path)
+    return probs
 
 
 class RobotDraw:
     """Draws one robot index per reset sub-env from the shared probabilities (env side)."""
 
-    def __init__(self, probs: torch.Tensor, seed: int):
+    def __init__(self, probs: np.ndarray, seed: int):
         self.probs = probs
         self.rng = np.random.default_rng(seed)
 
     def __call__(self, rows: np.ndarray) -> np.ndarray:
-        p = self.probs.numpy().astype(np.float64)
+        p = np.array(self.probs, dtype=np.float64)
         return self.rng.choice(len(p), size=len(rows), p=p / p.sum())
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        if isinstance(self.probs, np.memmap):  # share the file, not a copy of its values
+            state["probs"] = ("memmap", self.probs.filename, len(self.probs))
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        p = state["probs"]
+        if isinstance(p, tuple) and p[0] == "memmap":
+            state["probs"] = np.memmap(p[1], np.float64, "r", shape=(p[2],))
+        self.__dict__.update(state)
 
 
 class RobotSampler:
@@ -42,24 +75,19 @@ class RobotSampler:
         warmup_episodes: int = 10,
         alpha: float = 0.1,
         weight: float = 1000.0,
-        probs: torch.Tensor | None = None,
+        probs: np.ndarray | None = None,
     ):
         self.num_robots = num_robots
         self.uniform_iterations = uniform_iterations
         self.warmup_episodes = warmup_episodes
         self.alpha, self.weight = alpha, weight
-        #: the current probabilities (shared memory; ``probs``: share an existing tensor)
-        self.probs = self.uniform_probs(num_robots) if probs is None else probs
+        #: the current probabilities (a shared file; ``probs``: share an existing array)
+        self.probs = shared_probs(num_robots) if probs is None else probs
         if self.probs.shape != (num_robots,):
             raise ValueError(f"probs must have shape ({num_robots},), got {tuple(self.probs.shape)}")
         self.episodes = np.zeros(num_robots, np.int64)
         self.ema = np.zeros(num_robots)  # the warm-up mean until warmup_episodes episodes
         self.iteration = 0
-
-    @staticmethod
-    def uniform_probs(num_robots: int) -> torch.Tensor:
-        """Uniform probabilities in shared memory (readable by worker processes)."""
-        return torch.full((num_robots,), 1.0 / num_robots, dtype=torch.float64).share_memory_()
 
     def drawer(self, seed: int) -> RobotDraw:
         return RobotDraw(self.probs, seed)
@@ -78,7 +106,7 @@ class RobotSampler:
         """Count an iteration; past the uniform phase, set the probabilities from the EMAs."""
         self.iteration += 1
         if self.iteration >= self.uniform_iterations:
-            self.probs.copy_(torch.from_numpy(self.target_probs()))
+            self.probs[:] = self.target_probs()
 
     def target_probs(self) -> np.ndarray:
         """p_i proportional to weight / ema_i (robots without episodes get the mean EMA)."""
@@ -91,7 +119,7 @@ class RobotSampler:
 
     def stats(self) -> dict[str, float]:
         """The spread of the current probabilities (logged)."""
-        p = self.probs.numpy()
+        p = np.asarray(self.probs)
         entropy = float(-(p * np.log(np.maximum(p, 1e-12))).sum())
         return {
             "robot_p_min": float(p.min()),
@@ -103,7 +131,7 @@ class RobotSampler:
 
     def state_dict(self) -> dict:
         return {
-            "probs": self.probs.clone(),
+            "probs": np.array(self.probs),
             "episodes": self.episodes.copy(),
             "ema": self.ema.copy(),
             "iteration": self.iteration,
@@ -115,7 +143,7 @@ class RobotSampler:
                 f"the checkpoint's robot sampler has {len(state['episodes'])} robots, the run "
                 f"{self.num_robots}"
             )
-        self.probs.copy_(state["probs"])
+        self.probs[:] = np.asarray(state["probs"])
         self.episodes[:] = state["episodes"]
         self.ema[:] = state["ema"]
         self.iteration = int(state["iteration"])
