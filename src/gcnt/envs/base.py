@@ -944,8 +944,12 @@ class BatchedMujocoEnv(EnvBase):
             self.robots, [s.model for s in sims], self.max_limbs
         )
         rows, limbs, slots, offset = [], [], [], 0
+        cache = self.__dict__.setdefault("_actuator_cache", {})  # per robot, over resets
         for s in sims:
-            limb_of, slot_of = _actuator_slots(s.robot, s.model)
+            key = _robot_key(s.robot)
+            if key not in cache:
+                cache[key] = _actuator_slots(s.robot, s.model)
+            limb_of, slot_of = cache[key]
             rows.append(np.full(s.model.nu, s.index))
             limbs.append(limb_of)
             slots.append(slot_of)
