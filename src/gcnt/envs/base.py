@@ -399,6 +399,7 @@ class BatchedMujocoEnv(EnvBase):
         #: the ``sample`` given to :meth:`use_robot_pool` (None: each sub-env keeps its robot)
         self.robot_pool_sampler: Callable[[np.ndarray], np.ndarray] | None = None
         self._pool_models: list[mujoco.MjModel] = []
+        self._actuator_cache: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
 
         # Distinct robots and their models.
         distinct: dict[tuple[str, str], int] = {}
@@ -944,7 +945,7 @@ class BatchedMujocoEnv(EnvBase):
             self.robots, [s.model for s in sims], self.max_limbs
         )
         rows, limbs, slots, offset = [], [], [], 0
-        cache = self.__dict__.setdefault("_actuator_cache", {})  # per robot, over resets
+        cache = self._actuator_cache  # per robot, kept over resets
         for s in sims:
             key = _robot_key(s.robot)
             if key not in cache:
