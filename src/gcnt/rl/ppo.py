@@ -90,9 +90,10 @@ def lr_factor(iteration: int, total: int, config: PPOConfig) -> float:
     return f
 
 
-def make_gae(config: PPOConfig, critic: TensorDictModuleBase) -> GAE:
+def make_gae(config: PPOConfig, critic: TensorDictModuleBase | None) -> GAE:
     """GAE(gamma, lambda) over a batch [N, T] (time last): ``terminated`` cuts the bootstrap,
-    ``done`` the trace, so a time limit (truncated, not terminated) bootstraps with V(s')."""
+    ``done`` the trace, so a time limit (truncated, not terminated) bootstraps with V(s').
+    ``critic`` None: the batch carries ``state_value`` and ``("next", "state_value")``."""
     return GAE(
         gamma=config.gamma,
         lmbda=config.gae_lambda,
@@ -127,7 +128,7 @@ class PPOLearner:
             clip_value=o.clip_value if o.clip_value > 0 else None,
             functional=False,
         )
-        self.gae = make_gae(o, self.critic)
+        self.gae = make_gae(o, None)  # values computed in chunks (see values)
         self.params = [
             p for net in (self.actor, self.critic) for p in net.parameters() if p.requires_grad
         ]
@@ -156,10 +157,26 @@ class PPOLearner:
         return out
 
     @torch.no_grad()
+    def values(self, data: TensorDictBase) -> None:
+        """V(s) and V(s') of a batch [N, T], in chunks of about a mini-batch (one forward over a
+        whole iteration would hold every activation at once)."""
+        n, t = data.shape
+        step = max(1, self.config.minibatch_size // t)
+        keys = list(self.critic.in_keys)
+        for where in ((), ("next",)):
+            src = data.get(where) if where else data
+            parts = [
+                self.critic(src[i : i + step].select(*keys, strict=False)).get(VALUE)
+                for i in range(0, n, step)
+            ]
+            data.set((*where, VALUE), torch.cat(parts, 0))
+
+    @torch.no_grad()
     def advantages(self, data: TensorDictBase) -> TensorDictBase:
         """GAE on a batch [N, T] (time last) with normalised observations and scaled rewards;
         writes ``advantage`` (normalised over the batch if configured), ``value_target`` and
         ``state_value``."""
+        self.values(data)
         self.gae(data)
         if self.config.normalize_advantage:
             adv = data.get("advantage")
