@@ -131,6 +131,18 @@ def test_resume_continues_the_step_count_and_metrics(tmp_path):
     assert rows[: len(first)] == first
     assert [r["env_steps"] for r in rows[len(first) :]] == [120, 150]
     assert run.load_checkpoint()["learner"]["updates"] > state["learner"]["updates"]
+    # a learning rate given on resume is the one the optimisers use from then on
+    from gcnt.rl.td3 import TD3Learner
+    from gcnt.rl.factories import make_env, train_robots
+
+    lower = run.load_recipe(["td3.lr=1e-5"])
+    env = make_env(lower, train_robots(lower))
+    learner = TD3Learner(lower, env)
+    learner.load_state_dict(run.load_checkpoint()["learner"])
+    env.close()
+    assert {g["lr"] for o in (learner.actor_opt, learner.critic_opt) for g in o.param_groups} == {
+        1e-5
+    }
     # resuming a finished run does not train past its total
     assert gcnt(["train", "--resume", str(run_dir), "collector.total_frames=150"]) == 0
     assert run.load_checkpoint()["env_steps"] == 150 and run.read_metrics() == rows

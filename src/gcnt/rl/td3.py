@@ -207,6 +207,11 @@ class TD3Learner:
         _load_weights(self.target_critics, state["target_critics"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
+        # the recipe's learning rate wins over the saved one: a run resumed with another
+        # td3.lr (e.g. after a divergence) trains with it
+        for opt in (self.actor_opt, self.critic_opt):
+            for group in opt.param_groups:
+                group["lr"] = self.config.lr
         self.updates = state["updates"]
 
 
