@@ -23,6 +23,8 @@ copies the edits into a renderer's model copy.
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -92,22 +94,34 @@ def draw_mt(rng: np.random.Generator, out: np.ndarray | None = None) -> np.ndarr
 
 
 def draw_boxes(rng: np.random.Generator) -> np.ndarray:
-    """Obstacle boxes [n, 4]: centre x, centre y, half-side x, half-side y (n <= 50)."""
-    boxes = np.zeros((W.MAX_BOXES, 4))
-    n = 0
+    """Obstacle boxes [n, 4]: centre x, centre y, half-side x, half-side y (n <= 50).
+
+    Box i gets its half-sides, then up to ``BOX_PLACEMENT_TRIES`` candidate centres; the first
+    candidate whose footprint overlaps no box placed before it is taken, else the box is dropped.
+    All random numbers are drawn up front (three generator calls) and the candidates of one box
+    are tested against the placed boxes at once.
+    """
+    m, tries = W.MAX_BOXES, W.BOX_PLACEMENT_TRIES
     lo, hi = W.BOX_HALF_SIDE
     x_lo, x_hi = W.OBS_X[0] + 6.0, W.OBS_X[1] - 6.0  # centres in [3 + l, 91 - l)
-    for _ in range(W.MAX_BOXES):
-        hx, hy = rng.uniform(lo, hi, 2)
-        for _try in range(W.BOX_PLACEMENT_TRIES):
-            x = rng.uniform(x_lo + hx, x_hi - hx)
-            y = rng.uniform(W.OBS_Y[0] + hy, W.OBS_Y[1] - hy)
-            p = boxes[:n]
-            overlap = (np.abs(p[:, 0] - x) < p[:, 2] + hx) & (np.abs(p[:, 1] - y) < p[:, 3] + hy)
-            if not overlap.any():
-                boxes[n] = x, y, hx, hy
-                n += 1
-                break
+    half = rng.uniform(lo, hi, (m, 2))
+    u = rng.random((m, tries, 2))
+    # candidate centres, x in [x_lo + hx, x_hi - hx), y within the walls
+    cx = x_lo + half[:, :1] + u[..., 0] * (x_hi - x_lo - 2 * half[:, :1])
+    cy = W.OBS_Y[0] + half[:, 1:] + u[..., 1] * (W.OBS_Y[1] - W.OBS_Y[0] - 2 * half[:, 1:])
+    boxes = np.zeros((m, 4))
+    n = 0
+    for i in range(m):
+        hx, hy = half[i]
+        p = boxes[:n]
+        free = ~(
+            (np.abs(p[:, 0] - cx[i, :, None]) < p[:, 2] + hx)
+            & (np.abs(p[:, 1] - cy[i, :, None]) < p[:, 3] + hy)
+        ).any(1)
+        j = int(np.argmax(free))
+        if free[j]:
+            boxes[n] = cx[i, j], cy[i, j], hx, hy
+            n += 1
     return boxes[:n].copy()
 
 
@@ -215,12 +229,13 @@ class ObstacleField:
         grid = self.grid
         grid[...] = self._floor
         x0, y0 = self.origin
-        for x, y, lx, ly in boxes:
-            c0 = int(np.ceil((x - lx - x0) / W.CELL - 1e-9))
-            c1 = int(np.floor((x + lx - x0) / W.CELL + 1e-9))
-            r0 = int(np.ceil((y - ly - y0) / W.CELL - 1e-9))
-            r1 = int(np.floor((y + ly - y0) / W.CELL + 1e-9))
-            grid[r0 : r1 + 1, c0 : c1 + 1] = self.top
+        inv, top = 1.0 / W.CELL, self.top
+        for x, y, lx, ly in boxes.tolist():
+            c0 = math.ceil((x - lx - x0) * inv - 1e-9)
+            c1 = math.floor((x + lx - x0) * inv + 1e-9)
+            r0 = math.ceil((y - ly - y0) * inv - 1e-9)
+            r1 = math.floor((y + ly - y0) * inv + 1e-9)
+            grid[r0 : r1 + 1, c0 : c1 + 1] = top
 
     def ground(self, x: float, y: float) -> float:
         return 0.0
