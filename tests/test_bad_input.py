@@ -88,23 +88,35 @@ BAD_ROBOTS = {
     "empty": (b"", "not valid XML"),
     "binary": (bytes(range(256)) * 2, "not a text file"),
     "two_roots": (
-        ("  </worldbody>", '    <body name="torso2"><geom type="sphere" size=".1"/></body>\n'
-         "  </worldbody>"),
+        (
+            "  </worldbody>",
+            '    <body name="torso2"><geom type="sphere" size=".1"/></body>\n  </worldbody>',
+        ),
         "found 2",
     ),
-    "no_motor": (('<motor name="right3_joint" class="/" gear="100" joint="right3_joint"/>', ""),
-                 "'right3_joint' of limb 'right3' has no motor"),
+    "no_motor": (
+        ('<motor name="right3_joint" class="/" gear="100" joint="right3_joint"/>', ""),
+        "'right3_joint' of limb 'right3' has no motor",
+    ),
     "nan_size": (('size="0.0448"', 'size="nan"'), "left2_geom"),
     "negative_size": (('size="0.0448"', 'size="-0.0448"'), "left2_geom"),
-    "negative_mass": (('<geom name="left1_geom" class="/"',
-                       '<geom name="left1_geom" class="/" mass="-1"'), "left1_geom"),
-    "nan_position": (('<body name="left2" pos="0 0 -0.48">', '<body name="left2" pos="0 0 nan">'),
-                     "left2"),
-    "nan_gear": (('gear="100" joint="left1_joint"', 'gear="nan" joint="left1_joint"'),
-                 "left1_joint"),
+    "negative_mass": (
+        ('<geom name="left1_geom" class="/"', '<geom name="left1_geom" class="/" mass="-1"'),
+        "left1_geom",
+    ),
+    "nan_position": (
+        ('<body name="left2" pos="0 0 -0.48">', '<body name="left2" pos="0 0 nan">'),
+        "left2",
+    ),
+    "nan_gear": (
+        ('gear="100" joint="left1_joint"', 'gear="nan" joint="left1_joint"'),
+        "left1_joint",
+    ),
     "infinite_range": (('range="-1.309 1.309"', 'range="-inf inf"'), "left1_joint"),
-    "slide_limb": (('name="left2_joint" class="/" type="hinge"',
-                    'name="left2_joint" class="/" type="slide"'), "not a hinge"),
+    "slide_limb": (
+        ('name="left2_joint" class="/" type="hinge"', 'name="left2_joint" class="/" type="slide"'),
+        "not a hinge",
+    ),
 }
 
 
@@ -177,8 +189,9 @@ def test_an_unreadable_checkpoint_is_named(damage, trained, tmp_path, capsys):
     run = copy_run(trained, tmp_path)
     ckpt = run / "checkpoints" / "last.pt"
     data = ckpt.read_bytes()
-    ckpt.write_bytes({"truncated": data[: len(data) // 2], "garbage": b"\x00junk" * 50,
-                      "empty": b""}[damage])
+    ckpt.write_bytes(
+        {"truncated": data[: len(data) // 2], "garbage": b"\x00junk" * 50, "empty": b""}[damage]
+    )
     for argv in (["eval", str(run), "--robots", "hopper_3"], ["train", "--resume", str(run)]):
         line = error_line(capsys, argv)
         assert str(ckpt) in line and "not a readable gcnt checkpoint" in line
@@ -211,8 +224,16 @@ def test_online_logging_without_a_wandb_key(tmp_path, recipe_file, capsys, monke
     monkeypatch.setenv("HOME", str(tmp_path))
     monkeypatch.setenv("NETRC", str(tmp_path / "netrc"))
     monkeypatch.setenv("WANDB_CONFIG_DIR", str(tmp_path / "wandb-config"))
-    line = error_line(capsys, ["train", str(recipe_file), "logger.backend=wandb",
-                               "logger.mode=online", f"run_dir={tmp_path}/run"])
+    line = error_line(
+        capsys,
+        [
+            "train",
+            str(recipe_file),
+            "logger.backend=wandb",
+            "logger.mode=online",
+            f"run_dir={tmp_path}/run",
+        ],
+    )
     assert "logger.mode=online but W&B has no API key" in line
     assert not (tmp_path / "run").exists()
 
@@ -222,12 +243,14 @@ def test_a_fixed_size_network_on_a_larger_robot(tmp_path, recipe_file, capsys):
     is refused naming the robot (in eval, and in training before any step)."""
     run = tmp_path / "mlp"
     mlp = ["network.name=mlp", "network.kwargs={}"]
-    line = error_line(capsys, ["train", str(recipe_file), *mlp, "eval.robots=[walker_7_main]",
-                               f"run_dir={run}"])
+    line = error_line(
+        capsys, ["train", str(recipe_file), *mlp, "eval.robots=[walker_7_main]", f"run_dir={run}"]
+    )
     assert "robot 'walker_7_main' has 7 limbs; network 'mlp' was built for at most 3" in line
     assert not run.exists()
-    assert gcnt(["train", str(recipe_file), *mlp, "collector.total_frames=25",
-                 f"run_dir={run}"]) == 0
+    assert (
+        gcnt(["train", str(recipe_file), *mlp, "collector.total_frames=25", f"run_dir={run}"]) == 0
+    )
     line = error_line(capsys, ["eval", str(run), "--robots", "walker_7_main", "--episodes", "1"])
     assert "robot 'walker_7_main' has 7 limbs; network 'mlp' was built for at most 3" in line
 
@@ -286,8 +309,17 @@ def test_eval_with_zero_episodes_writes_nothing(trained, capsys):
 
 def test_a_diverging_run_stops_and_keeps_its_last_good_checkpoint(tmp_path, recipe_file, capsys):
     run = tmp_path / "run"
-    line = error_line(capsys, ["train", str(recipe_file), "td3.lr=1e30", "td3.max_grad_norm=0",
-                               "collector.total_frames=200", f"run_dir={run}"])
+    line = error_line(
+        capsys,
+        [
+            "train",
+            str(recipe_file),
+            "td3.lr=1e30",
+            "td3.max_grad_norm=0",
+            "collector.total_frames=200",
+            f"run_dir={run}",
+        ],
+    )
     assert "training diverged at" in line and "is nan" in line
     assert f"the last good checkpoint ({run / 'checkpoints' / 'last.pt'}) was kept" in line
     state = RunDir(run).load_checkpoint()
@@ -300,8 +332,12 @@ def test_only_losses_stop_a_run_not_diagnostics_that_may_be_nan(tmp_path):
     from gcnt.rl.loop import TrainingDivergedError, _check_losses
 
     run = RunDir(tmp_path / "run")
-    _check_losses(run, {"loss_critic": 1.0, "explained_variance": math.nan,
-                        "value_clip_fraction": math.nan}, 10, 1)
+    _check_losses(
+        run,
+        {"loss_critic": 1.0, "explained_variance": math.nan, "value_clip_fraction": math.nan},
+        10,
+        1,
+    )
     with pytest.raises(TrainingDivergedError, match="loss_policy is inf at update 3"):
         _check_losses(run, {"loss_policy": math.inf}, 10, 3)
 
@@ -337,8 +373,11 @@ def test_a_nan_injected_after_a_checkpoint_stops_the_run_which_resumes_from_it(
     assert gcnt(["train", "--resume", str(run)]) == 0
     state = RunDir(run).load_checkpoint()
     assert state["env_steps"] >= 40
-    assert all(bool(torch.isfinite(t).all()) for t in state["policy"]["actor"].values()
-               if t.is_floating_point())
+    assert all(
+        bool(torch.isfinite(t).all())
+        for t in state["policy"]["actor"].values()
+        if t.is_floating_point()
+    )
 
 
 def test_a_run_killed_before_its_first_checkpoint_is_never_overwritten(
@@ -398,14 +437,14 @@ def test_resuming_a_finished_run_trains_nothing(trained, tmp_path):
 # ------------------------------------------------------------------ 5. files outside the folder
 
 
-def test_includes_resolve_against_the_robot_folder_not_the_current_directory(
-    tmp_path, monkeypatch
-):
+def test_includes_resolve_against_the_robot_folder_not_the_current_directory(tmp_path, monkeypatch):
     from gcnt.morphology import load_robot
 
     decoy = tmp_path / "parts"  # what a cwd-relative include would pick up
     decoy.mkdir()
-    (decoy / "defaults.xml").write_text('<mujoco><default><geom rgba="1 0 0 1"/></default></mujoco>')
+    (decoy / "defaults.xml").write_text(
+        '<mujoco><default><geom rgba="1 0 0 1"/></default></mujoco>'
+    )
     monkeypatch.chdir(tmp_path)
     robot = load_robot(DATA / "includes" / "walker_split.xml")
     assert robot.body_names == ("torso", "left1", "left2", "right1", "right2")
@@ -417,13 +456,19 @@ def test_includes_resolve_against_the_robot_folder_not_the_current_directory(
 
 def test_includes_that_leave_the_robot_folder_are_refused(tmp_path, recipe_file, capsys):
     outside = DATA / "includes" / "walker_outside.xml"
-    line = error_line(capsys, ["train", str(recipe_file), f"env.robots=[{outside}]",
-                               f"run_dir={tmp_path}/run"])
+    line = error_line(
+        capsys, ["train", str(recipe_file), f"env.robots=[{outside}]", f"run_dir={tmp_path}/run"]
+    )
     assert str(outside) in line and "'../outside_legs.xml' leads out of the robot's folder" in line
-    absolute = walker(tmp_path, "walker_abs.xml", "<worldbody>",
-                      f'<include file="{DATA / "outside_legs.xml"}"/><worldbody>')
-    line = error_line(capsys, ["train", str(recipe_file), f"env.robots=[{absolute}]",
-                               f"run_dir={tmp_path}/run"])
+    absolute = walker(
+        tmp_path,
+        "walker_abs.xml",
+        "<worldbody>",
+        f'<include file="{DATA / "outside_legs.xml"}"/><worldbody>',
+    )
+    line = error_line(
+        capsys, ["train", str(recipe_file), f"env.robots=[{absolute}]", f"run_dir={tmp_path}/run"]
+    )
     assert "is an absolute path" in line and str(absolute) in line
     assert not (tmp_path / "run").exists()
 
@@ -455,14 +500,20 @@ def test_unseen_morphologies_in_other_styles_load_and_evaluate_zero_shot(
 
 def test_what_the_model_cannot_represent_is_refused_saying_why(tmp_path, recipe_file, capsys):
     servo = DATA / "walker_position_servo.xml"
-    line = error_line(capsys, ["train", str(recipe_file), f"env.robots=[{servo}]",
-                               f"run_dir={tmp_path}/run"])
+    line = error_line(
+        capsys, ["train", str(recipe_file), f"env.robots=[{servo}]", f"run_dir={tmp_path}/run"]
+    )
     assert "'left2_servo' is a servo" in line and "not a motor" in line
-    two = walker(tmp_path, "walker_two_hinges.xml", '<joint name="left2_joint"',
-                 '<joint name="left2_x" axis="1 0 0"/><joint name="left2_joint"')
+    two = walker(
+        tmp_path,
+        "walker_two_hinges.xml",
+        '<joint name="left2_joint"',
+        '<joint name="left2_x" axis="1 0 0"/><joint name="left2_joint"',
+    )
     two.write_text(two.read_text().replace("</actuator>", '<motor joint="left2_x"/></actuator>'))
-    line = error_line(capsys, ["train", str(recipe_file), f"env.robots=[{two}]",
-                               f"run_dir={tmp_path}/run"])
+    line = error_line(
+        capsys, ["train", str(recipe_file), f"env.robots=[{two}]", f"run_dir={tmp_path}/run"]
+    )
     assert "limb 'left2' has 2 joints; family 'walker' allows at most 1" in line
 
 
@@ -478,12 +529,18 @@ def test_a_nan_action_raises_naming_the_robot():
     env = make_smpenv(resolve_robots(["hopper_3", "walker_2_main"]), seed=0, num_threads=1)
     try:
         td = env.reset()
-        action = torch.zeros_like(td["limbs", "action"]) if ("limbs", "action") in td.keys(
-            True) else env.full_action_spec.zero()["limbs", "action"]
+        action = (
+            torch.zeros_like(td["limbs", "action"])
+            if ("limbs", "action") in td.keys(True)
+            else env.full_action_spec.zero()["limbs", "action"]
+        )
         action[1, 1, 0] = math.nan
         td["limbs", "action"] = action
-        with pytest.raises(ValueError, match=r"non-finite \(NaN/inf\) action for robot "
-                                             r"'walker_2_main' \(sub-env 1\)"):
+        with pytest.raises(
+            ValueError,
+            match=r"non-finite \(NaN/inf\) action for robot "
+            r"'walker_2_main' \(sub-env 1\)",
+        ):
             env.step(td)
     finally:
         env.close()

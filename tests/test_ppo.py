@@ -30,15 +30,26 @@ TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
 
 def tiny_recipe(run_dir, benchmark="smpenv", **ppo):
     robots = ["Hopper++:train"] if benchmark == "smpenv" else ["unimal_0000", "unimal_0001"]
-    cfg = {"num_envs": 4, "steps_per_env": 20, "minibatch_size": 40, "epochs": 2,
-           "uniform_iterations": 1, **ppo}
+    cfg = {
+        "num_envs": 4,
+        "steps_per_env": 20,
+        "minibatch_size": 40,
+        "epochs": 2,
+        "uniform_iterations": 1,
+        **ppo,
+    }
     return recipe_from_dict(
         {
             "algo": "ppo",
             "task": "tiny",
             "run_dir": str(run_dir),
-            "env": {"benchmark": benchmark, "robots": robots, "max_episode_steps": 15,
-                    "num_threads": 1, **({"world": "ft"} if benchmark == "unimal" else {})},
+            "env": {
+                "benchmark": benchmark,
+                "robots": robots,
+                "max_episode_steps": 15,
+                "num_threads": 1,
+                **({"world": "ft"} if benchmark == "unimal" else {}),
+            },
             "collector": {"total_frames": 240},
             "network": {"kwargs": TINY_NET},
             "ppo": cfg,
@@ -73,8 +84,18 @@ def test_ppo_trains_through_gcnt_train(benchmark, tmp_path, capsys):
     run = RunDir(tmp_path / "run")
     rows = run.read_metrics()
     assert rows[-1]["env_steps"] >= 240 and rows[-1]["updates"] > 0
-    for key in ("approx_kl", "clip_fraction", "explained_variance", "entropy", "lr",
-                "loss_critic", "loss_policy", "robot_p_min", "robot_p_max", "update_s"):
+    for key in (
+        "approx_kl",
+        "clip_fraction",
+        "explained_variance",
+        "entropy",
+        "lr",
+        "loss_critic",
+        "loss_policy",
+        "robot_p_min",
+        "robot_p_max",
+        "update_s",
+    ):
         assert any(key in r for r in rows), key
     assert any(k.startswith("train_return/") for r in rows for k in r)
     resolved = run.load_recipe().resolved
@@ -83,8 +104,22 @@ def test_ppo_trains_through_gcnt_train(benchmark, tmp_path, capsys):
     assert evals and json.loads(evals[-1].read_text())["deterministic"] is False
     # ModuMorph's protocol on the trained run: sampled actions, frozen statistics, CI over robots
     out_path = tmp_path / "eval.json"
-    assert gcnt(["eval", str(run.path), "--robots", "train", "--stochastic", "--episodes", "2",
-                 "--json", str(out_path)]) == 0
+    assert (
+        gcnt(
+            [
+                "eval",
+                str(run.path),
+                "--robots",
+                "train",
+                "--stochastic",
+                "--episodes",
+                "2",
+                "--json",
+                str(out_path),
+            ]
+        )
+        == 0
+    )
     assert "95% CI" in capsys.readouterr().out
     out = json.loads(out_path.read_text())
     assert out["deterministic"] is False
@@ -113,7 +148,9 @@ def test_kl_stop_is_checked_before_each_step_and_skips_the_rest_of_the_iteration
     assert algo.learner.stopped_at == (1, 0)
     assert algo.learner.iteration == 1
     after = algo.learner.actor.state_dict()
-    assert any(not torch.equal(before[k], after[k]) for k in before if before[k].is_floating_point())
+    assert any(
+        not torch.equal(before[k], after[k]) for k in before if before[k].is_floating_point()
+    )
     prep.env.close()
 
 
@@ -123,7 +160,9 @@ def test_lr_schedule_warms_up_then_follows_the_cosine():
     assert lr_factor(0, total, c) == pytest.approx(0.1)
     for it in range(1, 5):
         warm = 0.1 + 0.9 * it / 5
-        assert lr_factor(it, total, c) == pytest.approx(warm * 0.5 * (1 + math.cos(math.pi * it / total)))
+        assert lr_factor(it, total, c) == pytest.approx(
+            warm * 0.5 * (1 + math.cos(math.pi * it / total))
+        )
     for it in (5, 50, 99):
         assert lr_factor(it, total, c) == pytest.approx(0.5 * (1 + math.cos(math.pi * it / total)))
     assert lr_factor(total, total, c) == pytest.approx(0.0)
@@ -194,7 +233,9 @@ def test_slot_env_changes_robot_at_reset_and_matches_a_fresh_env():
     assert env.table.batch_size[0] == len(pool)
     td = env.reset()
     assert td["morph_id"].tolist() == [3, 2] and [r.name for r in env.robots] == [
-        pool[3].name, pool[2].name]
+        pool[3].name,
+        pool[2].name,
+    ]
     env.reset(td.clone().set("_reset", torch.tensor([[False], [True]])))
     td = env.observe()
     assert td["morph_id"].tolist() == [3, 1]
@@ -215,8 +256,9 @@ def test_slot_env_changes_robot_at_reset_and_matches_a_fresh_env():
 def test_timeouts_bootstrap_in_the_advantage_by_hand():
     """r + gamma V(s') at a truncation, r alone at a termination, traces cut at both."""
     c = PPOConfig(gamma=0.9, gae_lambda=0.8)
-    critic = TensorDictModule(lambda x: x.sum(-1, keepdim=True), in_keys=["x"],
-                              out_keys=["state_value"])
+    critic = TensorDictModule(
+        lambda x: x.sum(-1, keepdim=True), in_keys=["x"], out_keys=["state_value"]
+    )
     t_len = 5
     x = torch.arange(t_len, dtype=torch.float64).reshape(1, t_len, 1) + 1.0
     # next obs = the following obs, except at the episode ends (t = 1 timeout, t = 3 fall),
@@ -226,8 +268,16 @@ def test_timeouts_bootstrap_in_the_advantage_by_hand():
     trunc = torch.tensor([False, True, False, False, False]).reshape(1, t_len, 1)
     term = torch.tensor([False, False, False, True, False]).reshape(1, t_len, 1)
     td = TensorDict(
-        {"x": x, "next": {"x": nxt, "reward": reward, "terminated": term,
-                          "truncated": trunc, "done": term | trunc}},
+        {
+            "x": x,
+            "next": {
+                "x": nxt,
+                "reward": reward,
+                "terminated": term,
+                "truncated": trunc,
+                "done": term | trunc,
+            },
+        },
         [1, t_len],
     )
     make_gae(c, critic)(td)
@@ -262,8 +312,11 @@ def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp
     for algo in (a.algo, b.algo):
         torch.manual_seed(5)
         list(algo.process(data2.clone(), 160))
-    for (k, va), vb in zip(a.algo.learner.actor.state_dict().items(),
-                           b.algo.learner.actor.state_dict().values(), strict=True):
+    for (k, va), vb in zip(
+        a.algo.learner.actor.state_dict().items(),
+        b.algo.learner.actor.state_dict().values(),
+        strict=True,
+    ):
         assert torch.equal(va, vb), k
     assert torch.equal(a.algo.learner.obs_norm.mean, b.algo.learner.obs_norm.mean)
     assert np.array_equal(np.asarray(a.algo.sampler.probs), np.asarray(b.algo.sampler.probs))
@@ -321,16 +374,32 @@ def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
     """Each PPO recipe (its world, height map and method) on two robots, a few steps."""
     from gcnt.rl.loop import train
 
-    recipe = load_recipe(path, [
-        f"run_dir={tmp_path / 'run'}", "env.robots=[unimal_0000, unimal_0001]",
-        "env.test_robots=[]", "env.max_episode_steps=8", "env.num_threads=1",
-        "ppo.num_envs=2", "ppo.steps_per_env=6", "ppo.minibatch_size=6", "ppo.epochs=1",
-        "collector.total_frames=24", "logger.backend=none", "logger.progress=false",
-        "logger.log_interval=12", "eval.episodes=1", "eval.robots=[unimal_0000]",
-        "checkpoint_interval=12",
-        *([] if load_recipe(path).network.name == "sr" else [
-            "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}"]),
-    ])
+    recipe = load_recipe(
+        path,
+        [
+            f"run_dir={tmp_path / 'run'}",
+            "env.robots=[unimal_0000, unimal_0001]",
+            "env.test_robots=[]",
+            "env.max_episode_steps=8",
+            "env.num_threads=1",
+            "ppo.num_envs=2",
+            "ppo.steps_per_env=6",
+            "ppo.minibatch_size=6",
+            "ppo.epochs=1",
+            "collector.total_frames=24",
+            "logger.backend=none",
+            "logger.progress=false",
+            "logger.log_interval=12",
+            "eval.episodes=1",
+            "eval.robots=[unimal_0000]",
+            "checkpoint_interval=12",
+            *(
+                []
+                if load_recipe(path).network.name == "sr"
+                else ["network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}"]
+            ),
+        ],
+    )
     run = RunDir(recipe.run_dir)
     run.create(recipe)
     train(recipe, run)
@@ -340,8 +409,12 @@ def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
 
 
 def test_kl_thresholds_per_method_and_world_follow_table_5():
-    expect = {"ft": (0.05, 0.05, 0.05), "incline": (0.03, 0.05, 0.05),
-              "mt": (0.03, 0.03, 0.03), "obstacles": (0.03, 0.03, 0.03)}
+    expect = {
+        "ft": (0.05, 0.05, 0.05),
+        "incline": (0.03, 0.05, 0.05),
+        "mt": (0.03, 0.03, 0.03),
+        "obstacles": (0.03, 0.03, 0.03),
+    }
     for world, values in expect.items():
         for method, kl in zip(("metamorph_star", "modumorph", "gcnt"), values, strict=True):
             r = load_recipe(ROOT / f"recipes/unimal/{world}.yaml", [f"network.name={method}"])

@@ -31,8 +31,18 @@ class ToyEnv(EnvBase):
 
     batch_locked = True
 
-    def __init__(self, robots, *, max_limbs=None, max_episode_steps=5, seed=None,
-                 num_threads=None, robot_ids=None, device="cpu", world=None):
+    def __init__(
+        self,
+        robots,
+        *,
+        max_limbs=None,
+        max_episode_steps=5,
+        seed=None,
+        num_threads=None,
+        robot_ids=None,
+        device="cpu",
+        world=None,
+    ):
         n = len(robots)
         super().__init__(device=device, batch_size=torch.Size([n]))
         self.table = robot_table(robots, max_limbs, num_actions=A)
@@ -139,8 +149,11 @@ class ToyAlgorithm(Algorithm):
         yield {"loss_toy": loss.item()}
 
     def state_dict(self):
-        return {"actor": self.policy_state()["actor"], "opt": self.opt.state_dict(),
-                "updates": self.updates}
+        return {
+            "actor": self.policy_state()["actor"],
+            "opt": self.opt.state_dict(),
+            "updates": self.updates,
+        }
 
     def load_state_dict(self, state):
         self.actor.load_state_dict(state["actor"], strict=False)
@@ -160,8 +173,14 @@ class ToyAlgorithm(Algorithm):
 @pytest.fixture(scope="module", autouse=True)
 def toy_seams():
     register_benchmark(
-        Benchmark(name="toy", catalogue="smpenv", make_env=ToyEnv, preset="smpenv",
-                  limb_obs_dim=F, action_slots=A),
+        Benchmark(
+            name="toy",
+            catalogue="smpenv",
+            make_env=ToyEnv,
+            preset="smpenv",
+            limb_obs_dim=F,
+            action_slots=A,
+        ),
         replace=True,
     )
     register_algorithm_section("toy", ToyConfig, replace=True)
@@ -174,8 +193,11 @@ def toy_recipe(run_dir, **extra):
             "task": "toy-task",
             "algo": "toy",
             "run_dir": str(run_dir),
-            "env": {"benchmark": "toy", "robots": ["hopper_3", "walker_2_main"],
-                    "max_episode_steps": 5},
+            "env": {
+                "benchmark": "toy",
+                "robots": ["hopper_3", "walker_2_main"],
+                "max_episode_steps": 5,
+            },
             "collector": {"total_frames": 400},
             "network": {"name": "gcnt", "kwargs": {"d_model": 16, "layers": 1, "ff": 16}},
             "logger": {"backend": "none", "progress": False, "log_interval": 80},
@@ -212,5 +234,7 @@ def test_toy_sections_are_validated_only_when_active(tmp_path):
     r = toy_recipe(tmp_path, algo="td3", td3={"init_random_frames": 100})
     assert r.sections["toy"] == {"lr": 1e-2}
     with pytest.raises(RecipeError, match="unknown benchmark 'toyy'; did you mean 'toy'"):
-        train(toy_recipe(tmp_path, env={"benchmark": "toyy", "robots": ["hopper_3"]}),
-              RunDir(tmp_path / "x"))
+        train(
+            toy_recipe(tmp_path, env={"benchmark": "toyy", "robots": ["hopper_3"]}),
+            RunDir(tmp_path / "x"),
+        )

@@ -132,8 +132,8 @@ def test_resume_continues_the_step_count_and_metrics(tmp_path):
     assert [r["env_steps"] for r in rows[len(first) :]] == [120, 150]
     assert run.load_checkpoint()["learner"]["updates"] > state["learner"]["updates"]
     # a learning rate given on resume is the one the optimisers use from then on
-    from gcnt.rl.td3 import TD3Learner
     from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import TD3Learner
 
     lower = run.load_recipe(["td3.lr=1e-5"])
     env = make_env(lower, train_robots(lower))

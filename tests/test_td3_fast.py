@@ -171,8 +171,7 @@ def _reference(recipe, learner):
 
 def _grads(named, loss_value):
     names, params = zip(*named, strict=True)
-    return dict(zip(names, torch.autograd.grad(loss_value, params, allow_unused=True),
-                    strict=True))
+    return dict(zip(names, torch.autograd.grad(loss_value, params, allow_unused=True), strict=True))
 
 
 def test_fast_critic_and_actor_losses_equal_torchrl_td3loss_float64():
@@ -187,20 +186,23 @@ def test_fast_critic_and_actor_losses_equal_torchrl_td3loss_float64():
     torch.testing.assert_close(q_fast, q_ref, rtol=1e-12, atol=1e-12)
     # gradients of both critics, by parameter name
     ref_params = ref.qvalue_network_params.flatten_keys(".")
-    g_ref = _grads(
-        [(k, v) for k, v in ref_params.items() if "table_" not in k], q_ref
-    )
+    g_ref = _grads([(k, v) for k, v in ref_params.items() if "table_" not in k], q_ref)
     for i, critic in enumerate(learner.critics):
-        g_fast = _grads(list(critic.named_parameters()), q_fast if i == 0 else _again(learner,
-                                                                                      batch))
+        g_fast = _grads(
+            list(critic.named_parameters()), q_fast if i == 0 else _again(learner, batch)
+        )
         for name, g in g_fast.items():
             torch.testing.assert_close(g, g_ref[name][i], rtol=1e-9, atol=1e-12, msg=name)
     a_ref = actor_loss(ref, lookup(batch.clone()))
     a_fast = learner.actor_loss(batch)
     torch.testing.assert_close(a_fast, a_ref, rtol=1e-12, atol=1e-12)
     ga_ref = _grads(
-        [(k, v) for k, v in ref.actor_network_params.flatten_keys(".").items()
-         if "table_" not in k], a_ref
+        [
+            (k, v)
+            for k, v in ref.actor_network_params.flatten_keys(".").items()
+            if "table_" not in k
+        ],
+        a_ref,
     )
     for name, g in _grads(list(learner.actor.named_parameters()), a_fast).items():
         torch.testing.assert_close(g, ga_ref[name], rtol=1e-9, atol=1e-12, msg=name)
@@ -271,8 +273,9 @@ def test_soft_target_update_moves_targets_by_tau():
     before = [p.clone() for p in learner.target_actor.parameters()]
     learner.update(batch)
     tau = recipe.td3.tau
-    for b, t, p in zip(before, learner.target_actor.parameters(), learner.actor.parameters(),
-                       strict=True):
+    for b, t, p in zip(
+        before, learner.target_actor.parameters(), learner.actor.parameters(), strict=True
+    ):
         torch.testing.assert_close(t, (1 - tau) * b + tau * p)
 
 
@@ -280,8 +283,9 @@ def test_soft_target_update_moves_targets_by_tau():
 
 
 def test_compile_switches_are_accepted_and_cuda_only_ones_rejected_on_cpu():
-    r = load_recipe(QUICK, ["compile.compile=true", "compile.policy_compile=true",
-                            "compile.mode=default"])
+    r = load_recipe(
+        QUICK, ["compile.compile=true", "compile.policy_compile=true", "compile.mode=default"]
+    )
     assert r.compile.compile and r.compile.policy_compile
     assert not load_recipe(QUICK).compile.compile  # off by default
     for key in ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs"):
@@ -306,11 +310,22 @@ def test_collector_and_optimizer_switches():
 
 def test_checkpointed_buffers_resume_exactly(tmp_path):
     run_dir = tmp_path / "run"
-    over = [NET, "env.max_episode_steps=15", "td3.init_random_frames=30",
-            "td3.steps_per_batch=5", "td3.batch_size=8", "td3.updates_per_step=0.25",
-            "td3.checkpoint_buffers=true", "logger.backend=none", "logger.progress=false",
-            "logger.log_interval=30", "checkpoint_interval=30", "eval.episodes=0",
-            f"run_dir={run_dir}", "collector.total_frames=60"]
+    over = [
+        NET,
+        "env.max_episode_steps=15",
+        "td3.init_random_frames=30",
+        "td3.steps_per_batch=5",
+        "td3.batch_size=8",
+        "td3.updates_per_step=0.25",
+        "td3.checkpoint_buffers=true",
+        "logger.backend=none",
+        "logger.progress=false",
+        "logger.log_interval=30",
+        "checkpoint_interval=30",
+        "eval.episodes=0",
+        f"run_dir={run_dir}",
+        "collector.total_frames=60",
+    ]
     recipe = load_recipe(QUICK, over)
     run = RunDir(run_dir)
     run.create(recipe)

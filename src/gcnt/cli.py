@@ -34,7 +34,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "training env steps/s against the bare update",
     ),
     "bench-env": ("gcnt.commands.bench_env", "env steps/s against a raw mj_step loop"),
-    "sweep": ("gcnt.commands.sweep", "run a grid of recipes x methods x seeds, locally or on Slurm"),
+    "sweep": (
+        "gcnt.commands.sweep",
+        "run a grid of recipes x methods x seeds, locally or on Slurm",
+    ),
     "curves": ("gcnt.commands.curves", "learning curves over seeds (paper figures 6, 7, 9)"),
     "zeroshot": ("gcnt.commands.zeroshot", "zero-shot table over seeds (paper table 1)"),
     "variants": ("gcnt.commands.variants", "returns on variant sets, bootstrap CIs (figure 8)"),

@@ -126,8 +126,9 @@ class CompileConfig:
             raise ValueError(f"warmup must be >= 1, got {self.warmup}")
         modes = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
         if self.mode not in modes:
-            raise ValueError(f"mode must be one of {', '.join(map(str, modes[1:]))}, got "
-                             f"{self.mode!r}")
+            raise ValueError(
+                f"mode must be one of {', '.join(map(str, modes[1:]))}, got {self.mode!r}"
+            )
 
 
 #: algorithm name -> its recipe section (a dataclass); see :func:`register_algorithm_section`
@@ -211,11 +212,15 @@ class Recipe:
     def check(self) -> None:
         """Values and relations that cannot make a run (checked when the recipe is loaded)."""
         if self.collector.total_frames < 1:
-            raise ValueError(f"collector.total_frames must be >= 1, got {self.collector.total_frames}")
+            raise ValueError(
+                f"collector.total_frames must be >= 1, got {self.collector.total_frames}"
+            )
         if self.env.copies < 1:
             raise ValueError(f"env.copies must be >= 1, got {self.env.copies}")
         if self.env.max_episode_steps < 1:
-            raise ValueError(f"env.max_episode_steps must be >= 1, got {self.env.max_episode_steps}")
+            raise ValueError(
+                f"env.max_episode_steps must be >= 1, got {self.env.max_episode_steps}"
+            )
         if self.env.max_limbs is not None and self.env.max_limbs < 1:
             raise ValueError(f"env.max_limbs must be >= 1, got {self.env.max_limbs}")
         if self.env.num_threads is not None and self.env.num_threads < 1:
@@ -254,7 +259,9 @@ class Recipe:
                 if value:
                     out[f.name] = dict(value)
             else:
-                out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+                out[f.name] = (
+                    dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+                )
         return out
 
 
@@ -343,7 +350,9 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
         path = f"{where}.{key}" if where else str(key)
         if is_recipe and key in algorithm_names() and key not in names:
             # only the active algorithm's section is validated; the others are kept as written
-            sections[key] = _build(algorithm_section(key), value or {}, path) if key == algo else value
+            sections[key] = (
+                _build(algorithm_section(key), value or {}, path) if key == algo else value
+            )
             continue
         if key not in names:
             hint = did_you_mean(str(key), known) or f"; known keys: {', '.join(known)}"

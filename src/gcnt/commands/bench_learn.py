@@ -14,7 +14,6 @@ import tempfile
 import time
 
 
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recipe", nargs="?", default="recipes/quickstart.yaml")
     p.add_argument("overrides", nargs="*", help="dotted recipe overrides")

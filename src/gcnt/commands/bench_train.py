@@ -29,8 +29,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--updates", type=int, default=30, help="bare updates to time")
     p.add_argument("--steps", type=int, default=400, help="env steps to time end to end")
     p.add_argument("--warmup", type=int, default=200, help="random-action steps before timing")
-    p.add_argument("--iterations", type=int, default=3,
-                   help="PPO: iterations to run end to end (the first is warm-up)")
+    p.add_argument(
+        "--iterations",
+        type=int,
+        default=3,
+        help="PPO: iterations to run end to end (the first is warm-up)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
@@ -74,8 +78,10 @@ def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
     ensemble = rb.make_ensemble(len(robots), capacity, c.batch_size)
     rb.ensemble_store(ensemble, data)
     out = {}
-    for name, sample in (("ensemble", lambda: rb.ensemble_sample_mixed(ensemble)),
-                         ("one_storage", one.sample_mixed)):
+    for name, sample in (
+        ("ensemble", lambda: rb.ensemble_sample_mixed(ensemble)),
+        ("one_storage", one.sample_mixed),
+    ):
         sample()
         t0 = time.perf_counter()
         for _ in range(repeats):

@@ -23,8 +23,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="test | train | robot names | robot files or folders | Benchmark:split "
         "(default: test)",
     )
-    p.add_argument("--episodes", type=int, default=None,
-                   help="episodes per robot (default: 100 deterministic, 32 with --stochastic)")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="episodes per robot (default: 100 deterministic, 32 with --stochastic)",
+    )
     p.add_argument("--seed", type=int, default=10_000, help="evaluation seed")
     p.add_argument(
         "--stochastic",

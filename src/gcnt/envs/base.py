@@ -302,8 +302,7 @@ def _actuator_slots(r: Robot, model: mujoco.MjModel) -> tuple[np.ndarray, np.nda
             limb_of[act], slot_of[act] = limb, slot
     if (limb_of < 0).any():
         raise ValueError(
-            f"robot {r.name!r}: actuators {np.nonzero(limb_of < 0)[0].tolist()} drive no "
-            f"limb joint"
+            f"robot {r.name!r}: actuators {np.nonzero(limb_of < 0)[0].tolist()} drive no limb joint"
         )
     return limb_of, slot_of
 
@@ -929,8 +928,9 @@ class BatchedMujocoEnv(EnvBase):
                 model = self.compile_model(r)
                 rules = self.rules_factory(r, model, dt)
             data = mujoco.MjData(model)
-            self._sims[i] = _Sim(i, r, model, data, rules, slice(0, 0), data.ctrl,
-                                 data.warning.number)
+            self._sims[i] = _Sim(
+                i, r, model, data, rules, slice(0, 0), data.ctrl, data.warning.number
+            )
             self.local_ids[i] = self.morph_ids[i] = p
             self._cost[i] = _cost_guess(model, self.frame_skip)
             changed = True

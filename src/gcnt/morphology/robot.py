@@ -191,7 +191,9 @@ def _resolve_files(root: ET.Element, folder: Path | None, source: str, depth: in
             parent.insert(at + k, el)
     for el in assets:
         dirs = _ASSET_DIRS.get(el.tag, _DEFAULT_ASSET_DIRS)
-        prefix = next((compiler.get(d) for d in dirs if compiler is not None and compiler.get(d)), "")
+        prefix = next(
+            (compiler.get(d) for d in dirs if compiler is not None and compiler.get(d)), ""
+        )
         name = str(Path(prefix) / el.get("file")) if prefix else el.get("file")
         el.set("file", str(_inside(folder, name, f"{el.tag} file", source)))
     return True
@@ -199,13 +201,25 @@ def _resolve_files(root: ET.Element, folder: Path | None, source: str, depth: in
 
 #: (array, element kind, only where this boolean array is set) checked for NaN and infinity
 _FINITE_FIELDS = (
-    ("body_pos", "body", None), ("body_quat", "body", None), ("body_ipos", "body", None),
-    ("body_iquat", "body", None), ("body_mass", "body", None), ("body_inertia", "body", None),
-    ("geom_size", "geom", None), ("geom_pos", "geom", None), ("geom_quat", "geom", None),
-    ("geom_friction", "geom", None), ("jnt_pos", "joint", None), ("jnt_axis", "joint", None),
-    ("jnt_range", "joint", "jnt_limited"), ("jnt_stiffness", "joint", None),
-    ("dof_damping", "dof", None), ("dof_armature", "dof", None), ("dof_frictionloss", "dof", None),
-    ("actuator_gear", "actuator", None), ("actuator_gainprm", "actuator", None),
+    ("body_pos", "body", None),
+    ("body_quat", "body", None),
+    ("body_ipos", "body", None),
+    ("body_iquat", "body", None),
+    ("body_mass", "body", None),
+    ("body_inertia", "body", None),
+    ("geom_size", "geom", None),
+    ("geom_pos", "geom", None),
+    ("geom_quat", "geom", None),
+    ("geom_friction", "geom", None),
+    ("jnt_pos", "joint", None),
+    ("jnt_axis", "joint", None),
+    ("jnt_range", "joint", "jnt_limited"),
+    ("jnt_stiffness", "joint", None),
+    ("dof_damping", "dof", None),
+    ("dof_armature", "dof", None),
+    ("dof_frictionloss", "dof", None),
+    ("actuator_gear", "actuator", None),
+    ("actuator_gainprm", "actuator", None),
     ("actuator_ctrlrange", "actuator", "actuator_ctrllimited"),
 )
 

@@ -114,8 +114,8 @@ class Algorithm(ABC):
         """Write large data (replay buffers) to ``directory``; True if anything was written."""
         return False
 
-    def load_buffers(self, directory) -> None:
-        """Read what :meth:`buffers_state` wrote."""
+    def load_buffers(self, directory) -> None:  # noqa: B027 (optional hook, no-op by default)
+        """Read what :meth:`buffers_state` wrote (nothing to read by default)."""
 
     # ------------------------------------------------------------------ evaluation
     @abstractmethod

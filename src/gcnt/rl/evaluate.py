@@ -182,7 +182,11 @@ def summarize_robots(results: dict[str, dict], *, resamples: int = 2000, seed: i
         low = high = mean
     else:
         ci = bootstrap(
-            (x,), np.mean, confidence_level=0.95, n_resamples=resamples, method="percentile",
+            (x,),
+            np.mean,
+            confidence_level=0.95,
+            n_resamples=resamples,
+            method="percentile",
             random_state=np.random.default_rng(seed),
         ).confidence_interval
         low, high = float(ci.low), float(ci.high)

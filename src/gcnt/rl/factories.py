@@ -82,9 +82,7 @@ def env_widths(env: EnvBase) -> dict[str, int]:
     }
 
 
-def make_net(
-    recipe: Recipe, env: EnvBase, role: str, **extra: Any
-) -> TensorDictModuleBase:
+def make_net(recipe: Recipe, env: EnvBase, role: str, **extra: Any) -> TensorDictModuleBase:
     """One network of the recipe's method for ``role`` (td3_actor, ppo_critic, ...) over the
     robots of ``env``'s robot table, sized from ``env``'s specs."""
     net = recipe.network

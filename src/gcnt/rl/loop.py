@@ -336,8 +336,11 @@ def _evaluate(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: i
         run.path / "eval" / f"step{env_steps}.json",
         results,
         env_steps,
-        meta={"robots_spec": list(specs), "episodes": recipe.eval.episodes,
-              "deterministic": recipe.eval.deterministic},
+        meta={
+            "robots_spec": list(specs),
+            "episodes": recipe.eval.episodes,
+            "deterministic": recipe.eval.deterministic,
+        },
     )
     if logger is not None:
         for name, res in results.items():

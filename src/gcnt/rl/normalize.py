@@ -104,8 +104,12 @@ class RewardScaler:
     def __call__(self, reward: Tensor, done: Tensor) -> Tensor:
         """Scaled rewards for a batch ``reward``, ``done`` [N, T(, 1)], time last (or before the
         trailing 1); updates the statistics and the returns carried to the next batch."""
-        r = reward.detach().reshape(reward.shape[0], reward.shape[1]).cpu().numpy().astype(
-            np.float64
+        r = (
+            reward.detach()
+            .reshape(reward.shape[0], reward.shape[1])
+            .cpu()
+            .numpy()
+            .astype(np.float64)
         )
         d = done.reshape(r.shape).cpu().numpy()
         rets = np.empty_like(r)

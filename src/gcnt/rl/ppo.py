@@ -136,7 +136,9 @@ class PPOLearner:
         widths = env_widths(env)
         k = base_env(env).max_limbs
         self.obs_norm = (
-            ObsNormalizer(k, widths["obs_dim"], o.obs_clip).to(recipe.device) if o.obs_norm else None
+            ObsNormalizer(k, widths["obs_dim"], o.obs_clip).to(recipe.device)
+            if o.obs_norm
+            else None
         )
         self.kl_stop = o.kl_threshold(recipe.network.name)
         self.iteration = 0
@@ -322,8 +324,9 @@ def make_slot_env(
                 f"ppo.robot_sampling: fixed needs ppo.num_envs ({num_envs}) to be a multiple of "
                 f"the {r} training robots; use robot_sampling: sampled"
             )
-        return make_env(recipe, robots, copies=num_envs // r, seed=seed, max_limbs=k,
-                        num_threads=num_threads)
+        return make_env(
+            recipe, robots, copies=num_envs // r, seed=seed, max_limbs=k, num_threads=num_threads
+        )
     bench = benchmark_of(recipe)
     first = [i % r for i in range(num_envs)]
     env = bench.make_env(
@@ -403,7 +406,8 @@ class PPO(Algorithm):
                     self.robots,
                     per,
                     draw=self.sampler.drawer(self.recipe.seed + 1 + 1000 * (w + 1))
-                    if sampled else None,
+                    if sampled
+                    else None,
                     seed=self.recipe.seed + 1000 * (w + 1),
                     num_threads=1,
                 )
@@ -457,8 +461,8 @@ class PPO(Algorithm):
             "num_envs": o.num_envs,
             "frames_per_batch": self.frames_per_batch,
             "iterations": self.iterations,
-            "minibatches_per_epoch": self.frames_per_batch // min(o.minibatch_size,
-                                                                  self.frames_per_batch),
+            "minibatches_per_epoch": self.frames_per_batch
+            // min(o.minibatch_size, self.frames_per_batch),
             "kl_stop": self.learner.kl_stop,
         }
 

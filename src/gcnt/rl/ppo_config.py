@@ -82,8 +82,14 @@ class PPOConfig:
 
     def check(self) -> None:
         """Values that cannot train: a ValueError naming the key."""
-        for key in ("num_envs", "steps_per_env", "workers", "epochs", "minibatch_size",
-                    "ema_warmup_episodes"):
+        for key in (
+            "num_envs",
+            "steps_per_env",
+            "workers",
+            "epochs",
+            "minibatch_size",
+            "ema_warmup_episodes",
+        ):
             if getattr(self, key) < 1:
                 raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
         for key in ("uniform_iterations", "warmup_iterations"):

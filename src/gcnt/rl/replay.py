@@ -84,8 +84,12 @@ class RobotReplay:
             raise KeyError(f"RobotReplay: the collected data lacks the keys {missing}")
         r, c = self.num_robots, self.capacity
         self.storage = TensorDict(
-            {k: torch.zeros((r, c, *flat.get(k).shape[1:]), dtype=flat.get(k).dtype,
-                            device=self.device) for k in self.keys},
+            {
+                k: torch.zeros(
+                    (r, c, *flat.get(k).shape[1:]), dtype=flat.get(k).dtype, device=self.device
+                )
+                for k in self.keys
+            },
             batch_size=[r, c],
             device=self.device,
         )
@@ -125,8 +129,10 @@ class RobotReplay:
     # ------------------------------------------------------------------ sampling
     def _gather(self, index: torch.Tensor) -> TensorDictBase:
         return TensorDict(
-            {k: store.index_select(0, index) for k, store in zip(self.keys, self._flat,
-                                                                 strict=True)},
+            {
+                k: store.index_select(0, index)
+                for k, store in zip(self.keys, self._flat, strict=True)
+            },
             batch_size=index.shape,
             device=self.device,
         )
@@ -159,8 +165,12 @@ class RobotReplay:
         used = int(self.sizes.max()) if self.storage is not None else 0
         data = None
         if self.storage is not None:
-            data = {"__".join((k,) if isinstance(k, str) else k): self.storage.get(k)[:, :used]
-                    .to("cpu").clone() for k in self.keys}
+            data = {
+                "__".join((k,) if isinstance(k, str) else k): self.storage.get(k)[:, :used]
+                .to("cpu")
+                .clone()
+                for k in self.keys
+            }
         return {
             "num_robots": self.num_robots,
             "capacity": self.capacity,

@@ -84,7 +84,9 @@ class RobotSampler:
         #: the current probabilities (a shared file; ``probs``: share an existing array)
         self.probs = shared_probs(num_robots) if probs is None else probs
         if self.probs.shape != (num_robots,):
-            raise ValueError(f"probs must have shape ({num_robots},), got {tuple(self.probs.shape)}")
+            raise ValueError(
+                f"probs must have shape ({num_robots},), got {tuple(self.probs.shape)}"
+            )
         self.episodes = np.zeros(num_robots, np.int64)
         self.ema = np.zeros(num_robots)  # the warm-up mean until warmup_episodes episodes
         self.iteration = 0
@@ -125,7 +127,8 @@ class RobotSampler:
             "robot_p_min": float(p.min()),
             "robot_p_max": float(p.max()),
             # 1.0: uniform
-            "robot_p_entropy_ratio": entropy / np.log(self.num_robots) if self.num_robots > 1
+            "robot_p_entropy_ratio": entropy / np.log(self.num_robots)
+            if self.num_robots > 1
             else 1.0,
         }
 

@@ -81,9 +81,7 @@ class TD3Learner:
         self.actor_params = list(self.actor.parameters())
         self.critic_params = list(self.critics.parameters())
         self._online = self.actor_params + self.critic_params
-        self._target = list(self.target_actor.parameters()) + list(
-            self.target_critics.parameters()
-        )
+        self._target = list(self.target_actor.parameters()) + list(self.target_critics.parameters())
         opt_kw = optimizer_kwargs(self.accel, self.device)
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=o.lr, **opt_kw)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=o.lr, **opt_kw)
@@ -318,8 +316,7 @@ class TD3(Algorithm):
         losses = [self.learner.step(batch) for batch in self.schedule.batches(self.replay, warm)]
         if losses:
             keys = sorted({k for row in losses for k in row})
-            values = {k: torch.stack([row[k] for row in losses if k in row]).tolist()
-                      for k in keys}
+            values = {k: torch.stack([row[k] for row in losses if k in row]).tolist() for k in keys}
             its = {k: iter(v) for k, v in values.items()}
             for row in losses:
                 yield {k: next(its[k]) for k in row}

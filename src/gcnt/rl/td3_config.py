@@ -52,8 +52,13 @@ class TD3Config:
 
     def check(self) -> None:
         """Values that cannot train: a ValueError naming the key."""
-        for key in ("steps_per_batch", "batch_size", "buffer_size_per_robot", "buffer_total_size",
-                    "policy_delay"):
+        for key in (
+            "steps_per_batch",
+            "batch_size",
+            "buffer_size_per_robot",
+            "buffer_total_size",
+            "policy_delay",
+        ):
             if getattr(self, key) < 1:
                 raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
         for key in ("init_random_frames",):

@@ -111,7 +111,9 @@ class TensorChain:
                 and not getattr(st, "method_kwargs", None)
             )
             per_robot = (
-                plain and bool(in_keys) and all(k in static for k in in_keys)
+                plain
+                and bool(in_keys)
+                and all(k in static for k in in_keys)
                 and not _has_dropout(st)
             )
             if per_robot:
@@ -212,7 +214,7 @@ class TensorChainModule(TensorDictModuleBase):
         for k in self.inputs:
             v = tensordict.get(k, None)
             if v is not None:
-                inputs[k] = v.reshape(n, *v.shape[len(lead):])
+                inputs[k] = v.reshape(n, *v.shape[len(lead) :])
         out = self.fn(inputs, robots)
         for k in self.out_keys:
             v = out[k]
