@@ -9,12 +9,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 
 from gcnt.envs.benchmark import Benchmark, get_benchmark
 from gcnt.morphology import Robot
 from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.keys import ACTION, OBS
 from gcnt.nn.registry import make_network
 from gcnt.recipes import Recipe, RecipeError
@@ -99,3 +101,22 @@ def make_net(recipe: Recipe, env: EnvBase, role: str, **extra: Any) -> TensorDic
         **extra,
         **net.kwargs,
     ).to(recipe.device)
+
+
+def network_weights(module: torch.nn.Module) -> dict:
+    """A network's state dict without its robot table (static data, rebuilt for any robots)."""
+    return {k: v for k, v in module.state_dict().items() if not is_table_key(k)}
+
+
+def load_weights(module: torch.nn.Module, weights: dict) -> None:
+    """Load network weights (the robot table is rebuilt, not loaded); a mismatch names itself."""
+    try:
+        missing, unexpected = module.load_state_dict(weights, strict=False)
+    except RuntimeError as e:
+        raise ValueError(f"the checkpoint does not fit the recipe's network: {e}") from None
+    missing = [k for k in missing if not is_table_key(k)]
+    if missing or unexpected:
+        raise ValueError(
+            f"the checkpoint does not fit the recipe's network: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )

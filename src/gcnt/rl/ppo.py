@@ -42,11 +42,18 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from gcnt.morphology import Robot
-from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.keys import ACTION, HFIELD, LOG_PROB, MASK, MORPH_ID, OBS, VALUE
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.algorithm import Algorithm, CollectSettings
-from gcnt.rl.factories import base_env, benchmark_of, env_widths, make_env, make_net
+from gcnt.rl.factories import (
+    base_env,
+    benchmark_of,
+    env_widths,
+    load_weights,
+    make_env,
+    make_net,
+    network_weights,
+)
 from gcnt.rl.normalize import ObsNormalizer, RewardScaler
 from gcnt.rl.ppo_config import PPOConfig
 from gcnt.rl.robot_sampler import RobotDraw, RobotSampler, shared_probs
@@ -257,13 +264,10 @@ class PPOLearner:
         return rb
 
     # ------------------------------------------------------------------ state
-    def weights(self, net: torch.nn.Module) -> dict:
-        return {k: v for k, v in net.state_dict().items() if not is_table_key(k)}
-
     def state_dict(self) -> dict:
         return {
-            "actor": self.weights(self.actor),
-            "critic": self.weights(self.critic),
+            "actor": network_weights(self.actor),
+            "critic": network_weights(self.critic),
             "opt": self.opt.state_dict(),
             "obs_norm": None if self.obs_norm is None else self.obs_norm.state_dict(),
             "iteration": self.iteration,
@@ -271,8 +275,8 @@ class PPOLearner:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        _load_weights(self.actor, state["actor"])
-        _load_weights(self.critic, state["critic"])
+        load_weights(self.actor, state["actor"])
+        load_weights(self.critic, state["critic"])
         self.opt.load_state_dict(state["opt"])
         if self.obs_norm is not None and state.get("obs_norm") is not None:
             self.obs_norm.load_state_dict(state["obs_norm"])
@@ -487,7 +491,7 @@ class PPO(Algorithm):
     def policy_state(self) -> dict[str, Any]:
         norm = self.learner.obs_norm
         return {
-            "actor": self.learner.weights(self.learner.actor),
+            "actor": network_weights(self.learner.actor),
             "obs_norm": None if norm is None else norm.state_dict(),
         }
 
@@ -499,7 +503,7 @@ class PPO(Algorithm):
         ``deterministic`` (the caller's exploration type picks mean or sample)."""
         o: PPOConfig = recipe.algo_config
         actor = make_net(recipe, env, "ppo_actor", ppo_std=o.std, ppo_init_std=o.init_std)
-        _load_weights(actor, state["actor"])
+        load_weights(actor, state["actor"])
         actor.eval()
         norm = None
         if state.get("obs_norm") is not None:
@@ -509,17 +513,3 @@ class PPO(Algorithm):
             norm = trained.for_limbs(base_env(env).max_limbs).to(recipe.device)
             norm.clip = o.obs_clip
         return NormalizedPolicy(norm, actor).eval()
-
-
-def _load_weights(module: torch.nn.Module, weights: dict) -> None:
-    """Load network weights (the robot table is rebuilt, not loaded); a mismatch names itself."""
-    try:
-        missing, unexpected = module.load_state_dict(weights, strict=False)
-    except RuntimeError as e:
-        raise ValueError(f"the checkpoint does not fit the recipe's network: {e}") from None
-    missing = [k for k in missing if not is_table_key(k)]
-    if missing or unexpected:
-        raise ValueError(
-            f"the checkpoint does not fit the recipe's network: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}"
-        )

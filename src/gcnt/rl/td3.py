@@ -34,13 +34,12 @@ from torchrl.envs import EnvBase
 from torchrl.modules import AdditiveGaussianModule
 
 from gcnt.morphology import Robot
-from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.recipes import Recipe
 from gcnt.rl import replay as rb
 from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings
-from gcnt.rl.factories import make_net
+from gcnt.rl.factories import load_weights, make_net, network_weights
 from gcnt.rl.td3_config import TD3Config
 from gcnt.rl.td3_loss import (
     deterministic_actor_loss,
@@ -183,10 +182,10 @@ class TD3Learner:
         # The robot table is static data, not learnt state: GraphLookup's buffers are left out
         # so that a checkpoint loads for any robot set.
         return {
-            "actor": _weights(self.actor),
-            "critics": _weights(self.critics),
-            "target_actor": _weights(self.target_actor),
-            "target_critics": _weights(self.target_critics),
+            "actor": network_weights(self.actor),
+            "critics": network_weights(self.critics),
+            "target_actor": network_weights(self.target_actor),
+            "target_critics": network_weights(self.target_critics),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "updates": self.updates,
@@ -199,10 +198,10 @@ class TD3Learner:
                 "its policy can still be evaluated (`gcnt eval`), but training cannot resume "
                 "from it"
             )
-        _load_weights(self.actor, state["actor"])
-        _load_weights(self.critics, state["critics"])
-        _load_weights(self.target_actor, state["target_actor"])
-        _load_weights(self.target_critics, state["target_critics"])
+        load_weights(self.actor, state["actor"])
+        load_weights(self.critics, state["critics"])
+        load_weights(self.target_actor, state["target_actor"])
+        load_weights(self.target_critics, state["target_critics"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         # the recipe's learning rate wins over the saved one: a run resumed with another
@@ -211,10 +210,6 @@ class TD3Learner:
             for group in opt.param_groups:
                 group["lr"] = self.config.lr
         self.updates = state["updates"]
-
-
-def _weights(module: torch.nn.Module) -> dict:
-    return {k: v for k, v in module.state_dict().items() if not is_table_key(k)}
 
 
 class UpdateSchedule:
@@ -377,15 +372,14 @@ class TD3(Algorithm):
         self.replay.load(path)
 
     def policy_state(self) -> dict[str, Any]:
-        actor = self.learner.actor.state_dict()
-        return {"actor": {k: v for k, v in actor.items() if not is_table_key(k)}}
+        return {"actor": network_weights(self.learner.actor)}
 
     @classmethod
     def eval_policy(
         cls, recipe: Recipe, state: dict[str, Any], env: EnvBase, *, deterministic: bool = True
     ):
         actor = make_net(recipe, env, "td3_actor")
-        _load_weights(actor, state["actor"])
+        load_weights(actor, state["actor"])
         actor.eval()
         fast = TensorChainModule(actor, [ACTION])
         if deterministic:
@@ -399,18 +393,4 @@ class TD3(Algorithm):
                 annealing_num_steps=1,
                 action_key=ACTION,
             ),
-        )
-
-
-def _load_weights(module: torch.nn.Module, weights: dict) -> None:
-    """Load network weights (the robot table is rebuilt, not loaded); a mismatch names itself."""
-    try:
-        missing, unexpected = module.load_state_dict(weights, strict=False)
-    except RuntimeError as e:
-        raise ValueError(f"the checkpoint does not fit the recipe's network: {e}") from None
-    missing = [k for k in missing if not is_table_key(k)]
-    if missing or unexpected:
-        raise ValueError(
-            f"the checkpoint does not fit the recipe's network: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}"
         )
