@@ -78,14 +78,20 @@ def reference_rollout(actions: np.ndarray | None = None) -> dict[str, np.ndarray
     return result
 
 
-def test_reference_rollout_is_reproduced_exactly():
+def test_reference_rollout_is_reproduced():
+    """Flags and ids exactly; floating-point outputs to a few float32 ulps (on the recording
+    machine they match bit for bit, but numpy's transcendental functions may round differently
+    on another CPU's SIMD path, and a test must not depend on one CPU's last bit)."""
     ref = dict(np.load(DATA))
     got = reference_rollout(ref["actions"])
     assert got.keys() == ref.keys()
     assert ref["terminated"].any() and ref["truncated"].any()  # the file covers both ends
     for key, want in ref.items():
         assert got[key].shape == want.shape, key
-        np.testing.assert_array_equal(got[key].astype(np.float64), want.astype(np.float64), key)
+        if np.issubdtype(want.dtype, np.floating):
+            np.testing.assert_allclose(got[key], want, rtol=1e-5, atol=1e-5, err_msg=key)
+        else:
+            np.testing.assert_array_equal(got[key], want, key)
 
 
 if __name__ == "__main__":
