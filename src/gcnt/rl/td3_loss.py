@@ -48,7 +48,7 @@ def make_td3_loss(
     loss = TD3Loss(
         actor_network=actor,
         qvalue_network=critics,
-        bounds=(-1.0, 1.0),  # a nested action spec is rejected by TD3Loss (torchrl-notes)
+        bounds=(-1.0, 1.0),  # TD3Loss rejects a nested Composite action spec (KeyError "action")
         num_qvalue_nets=2,
         policy_noise=policy_noise,
         noise_clip=noise_clip,
