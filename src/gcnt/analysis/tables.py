@@ -1,14 +1,11 @@
 """Parameter tables (paper tables 7-8) as Markdown, from what ``gcnt params`` counts.
 
-``gcnt.commands.params.count_table(preset)`` gives one row per method (``method``, ``actor``,
-``critic`` and the paper's count when known); if that function is not there, the text that
-``gcnt params --preset PRESET`` prints is kept verbatim in a code block.
+``gcnt.commands.params.count_table(preset)`` gives one row per (world, method) (``actor``,
+``critic``, ``total`` and the paper's count when known).
 """
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from typing import Any
 
 PRESETS = {"smpenv": "Table 7 (SMPENV, TD3)", "unimal": "Table 8 (UNIMAL, PPO)"}
@@ -43,26 +40,12 @@ def rows_to_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def params_table(preset: str) -> tuple[str, list[dict[str, Any]] | None]:
-    """(Markdown, rows or None) of the parameter counts at ``preset``."""
-    try:
-        from gcnt.commands.params import count_table
-    except ImportError:
-        count_table = None
-    if count_table is not None:
-        try:
-            rows = count_table(preset)
-        except TypeError:
-            rows = None
-        if isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows):
-            return rows_to_markdown(rows), rows
-    text = subprocess.run(
-        [sys.executable, "-m", "gcnt.cli", "params", "--preset", preset],
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
-    return f"```\n{text.rstrip()}\n```", None
+def params_table(preset: str) -> tuple[str, list[dict[str, Any]]]:
+    """(Markdown, rows) of the parameter counts at ``preset``."""
+    from gcnt.commands.params import count_table
+
+    rows = count_table(preset)
+    return rows_to_markdown(rows), rows
 
 
 def parameter_tables(presets: tuple[str, ...] = tuple(PRESETS)) -> tuple[str, dict[str, Any]]:
