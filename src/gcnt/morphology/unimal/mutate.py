@@ -64,38 +64,27 @@ def _map_hinges(u: Unimal, groups: list[tuple[int, ...]], fn: Callable[[Limb], t
     return u.replace_limbs(new)
 
 
-def _joint_angle(u: Unimal, rng: Rng) -> Unimal:
-    return _map_hinges(
-        u,
-        _scope(u, rng),
-        lambda lb: tuple(replace(h, range=rng.choice(JOINT_RANGES)) for h in lb.hinges),
-    )
+def _redraw(field: str, values: tuple) -> Operator:
+    """The operator that redraws hinge attribute ``field`` from ``values`` (scope: _scope)."""
+
+    def op(u: Unimal, rng: Rng) -> Unimal:
+        return _map_hinges(
+            u,
+            _scope(u, rng),
+            lambda lb: tuple(replace(h, **{field: rng.choice(values)}) for h in lb.hinges),
+        )
+
+    return op
 
 
-def _gear(u: Unimal, rng: Rng) -> Unimal:
-    return _map_hinges(
-        u, _scope(u, rng), lambda lb: tuple(replace(h, gear=rng.choice(GEARS)) for h in lb.hinges)
-    )
+_joint_angle = _redraw("range", JOINT_RANGES)
+_gear = _redraw("gear", GEARS)
+_armature = _redraw("armature", ARMATURES)
+_damping = _redraw("damping", DAMPINGS)
 
 
 def _dof(u: Unimal, rng: Rng) -> Unimal:
     return _map_hinges(u, _scope(u, rng), lambda lb: sample_hinges(rng))
-
-
-def _armature(u: Unimal, rng: Rng) -> Unimal:
-    return _map_hinges(
-        u,
-        _scope(u, rng),
-        lambda lb: tuple(replace(h, armature=rng.choice(ARMATURES)) for h in lb.hinges),
-    )
-
-
-def _damping(u: Unimal, rng: Rng) -> Unimal:
-    return _map_hinges(
-        u,
-        _scope(u, rng),
-        lambda lb: tuple(replace(h, damping=rng.choice(DAMPINGS)) for h in lb.hinges),
-    )
 
 
 def _density(u: Unimal, rng: Rng) -> Unimal:
