@@ -123,7 +123,8 @@ def _table(rows: list[tuple[str, ...]], header: tuple[str, ...]) -> str:
     return "\n".join(line.rstrip() for line in lines)
 
 
-def _benchmark_of(robots: list[Robot]) -> dict[str, str]:
+def _benchmark_of() -> dict[str, str]:
+    """Robot name -> the first ``Benchmark:split`` that lists it."""
     where: dict[str, str] = {}
     for bench, splits in load_benchmarks().items():
         for split, names in splits.items():
@@ -133,7 +134,7 @@ def _benchmark_of(robots: list[Robot]) -> dict[str, str]:
 
 
 def _robot_rows(robots: list[Robot]) -> str:
-    where = _benchmark_of(robots)
+    where = _benchmark_of()
     rows = [
         (
             r.name,
