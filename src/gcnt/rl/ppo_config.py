@@ -5,9 +5,10 @@ Imported by the recipe loader without torch, so keep this module free of heavy i
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Literal
+
+from gcnt.rl.config_check import check_range
 
 
 @dataclass
@@ -82,31 +83,24 @@ class PPOConfig:
 
     def check(self) -> None:
         """Values that cannot train: a ValueError naming the key."""
-        for key in (
+        check_range(
+            self,
+            ">= 1",
             "num_envs",
             "steps_per_env",
             "workers",
             "epochs",
             "minibatch_size",
             "ema_warmup_episodes",
-        ):
-            if getattr(self, key) < 1:
-                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
-        for key in ("uniform_iterations", "warmup_iterations"):
-            if getattr(self, key) < 0:
-                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
-        for key in ("lr", "adam_eps", "init_std", "obs_clip", "reward_clip"):
-            v = getattr(self, key)
-            if not (v > 0 and math.isfinite(v)):
-                raise ValueError(f"{key} must be a positive finite number, got {v}")
-        for key in ("gamma", "gae_lambda", "ema_alpha", "warmup_start"):
-            v = getattr(self, key)
-            if not 0.0 <= v <= 1.0:
-                raise ValueError(f"{key} must be in [0, 1], got {v}")
-        for key in ("clip_epsilon", "clip_value", "critic_coeff", "entropy_coeff"):
-            v = getattr(self, key)
-            if not (v >= 0 and math.isfinite(v)):
-                raise ValueError(f"{key} must be >= 0 and finite, got {v}")
+        )
+        check_range(self, ">= 0", "uniform_iterations", "warmup_iterations")
+        check_range(
+            self, "positive finite", "lr", "adam_eps", "init_std", "obs_clip", "reward_clip"
+        )
+        check_range(self, "[0, 1]", "gamma", "gae_lambda", "ema_alpha", "warmup_start")
+        check_range(
+            self, ">= 0 finite", "clip_epsilon", "clip_value", "critic_coeff", "entropy_coeff"
+        )
         if self.clip_epsilon <= 0:
             raise ValueError(f"clip_epsilon must be > 0, got {self.clip_epsilon}")
         if isinstance(self.kl_stop, dict):

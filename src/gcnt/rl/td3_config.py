@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from gcnt.rl.config_check import check_range
+
 
 @dataclass
 class TD3Config:
@@ -52,30 +54,21 @@ class TD3Config:
 
     def check(self) -> None:
         """Values that cannot train: a ValueError naming the key."""
-        for key in (
+        check_range(
+            self,
+            ">= 1",
             "steps_per_batch",
             "batch_size",
             "buffer_size_per_robot",
             "buffer_total_size",
             "policy_delay",
-        ):
-            if getattr(self, key) < 1:
-                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
-        for key in ("init_random_frames",):
-            if getattr(self, key) < 0:
-                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
-        for key in ("lr", "tau", "updates_per_step"):
-            v = getattr(self, key)
-            if not v > 0 or v != v or v == float("inf"):
-                raise ValueError(f"{key} must be a positive finite number, got {v}")
-        if not 0.0 <= self.gamma <= 1.0:
-            raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
+        )
+        check_range(self, ">= 0", "init_random_frames")
+        check_range(self, "positive finite", "lr", "tau", "updates_per_step")
+        check_range(self, "[0, 1]", "gamma")
         if not self.tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {self.tau}")
-        for key in ("exploration_noise", "policy_noise", "noise_clip"):
-            v = getattr(self, key)
-            if not v >= 0 or v == float("inf"):
-                raise ValueError(f"{key} must be >= 0 and finite, got {v}")
+        check_range(self, ">= 0 finite", "exploration_noise", "policy_noise", "noise_clip")
         if self.max_grad_norm != self.max_grad_norm or self.max_grad_norm == float("inf"):
             raise ValueError(f"max_grad_norm must be finite (<= 0: off), got {self.max_grad_norm}")
         if self.batch_size > min(self.buffer_size_per_robot, self.buffer_total_size):
