@@ -22,7 +22,7 @@ import time
 import torch
 from tensordict import TensorDict
 
-from gcnt.commands.params import ALGORITHM, counting_table, setup_of
+from gcnt.commands.params import ALGORITHM, counting_table, network_kwargs, setup_of
 from gcnt.nn import count_parameters, make_network
 from gcnt.nn import keys as K
 
@@ -112,13 +112,7 @@ def bench(
     table = counting_table(setup)
     n, k = table.get(K.MASK).shape
     td = make_batch(n, per_robot, k, setup.obs_dim, setup.num_actions, dev, seed, hfield)
-    kw = dict(
-        table=table,
-        obs_dim=setup.obs_dim,
-        num_actions=setup.num_actions,
-        preset=setup.preset,
-        hfield_dim=hfield,
-    )
+    kw = network_kwargs(setup, table, hfield)
     nets = {(m, r): make_network(m, r, **kw).to(dev) for m in methods for r in roles}
     times: dict[tuple[str, str], list[float]] = {key: [] for key in nets}
     for i in range(repeats + 2):

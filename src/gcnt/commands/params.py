@@ -150,6 +150,17 @@ def counting_table(setup: Setup):
     return table
 
 
+def network_kwargs(setup: Setup, table, hfield: int) -> dict:
+    """What :func:`gcnt.nn.make_network` takes, besides method and role, at ``setup``'s widths."""
+    return dict(
+        table=table,
+        obs_dim=setup.obs_dim,
+        num_actions=setup.num_actions,
+        preset=setup.preset,
+        hfield_dim=hfield,
+    )
+
+
 def count_table(benchmark: str = "smpenv") -> list[dict]:
     """One row per (world, method): actor, critic, their sum and the paper's number (or None)."""
     setup = setup_of(benchmark)
@@ -159,14 +170,8 @@ def count_table(benchmark: str = "smpenv") -> list[dict]:
     rows = []
     for world, hfield in setup.worlds:
         col = paper.get(_PAPER_WORLD.get(world.lower(), world), {})
+        kw = network_kwargs(setup, table, hfield)
         for name in METHODS.get(setup.benchmark, METHODS["unimal"]):
-            kw = dict(
-                table=table,
-                obs_dim=setup.obs_dim,
-                num_actions=setup.num_actions,
-                preset=setup.preset,
-                hfield_dim=hfield,
-            )
             actor = count_parameters(make_network(name, f"{algo}_actor", **kw))
             critic = count_parameters(make_network(name, f"{algo}_critic", **kw))
             rows.append(
