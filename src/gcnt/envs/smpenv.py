@@ -46,6 +46,7 @@ class SMPEnv(BatchedMujocoEnv):
         robot_ids: each sub-env's index into a run-wide robot table, emitted as ``morph_id``
             (default: the index of its robot in :attr:`table`).
         frame_skip: physics steps per control step (SMPENV: 4).
+        world: must be None (SMPENV has one world; the argument of ``Benchmark.make_env``).
 
     Attributes:
         robots, max_limbs (K), table (``robot_table`` of the distinct robots, batch [R]),
@@ -65,7 +66,9 @@ class SMPEnv(BatchedMujocoEnv):
         num_threads: int | None = None,
         robot_ids: Sequence[int] | None = None,
         frame_skip: int = FRAME_SKIP,
+        world: str | None = None,
     ):
+        SMPENV_BENCHMARK.check_world(world)  # SMPENV has one world: world must be None
         super().__init__(
             robots,
             max_limbs,
@@ -82,35 +85,14 @@ class SMPEnv(BatchedMujocoEnv):
         )
 
 
-def make_smpenv(
-    robots: Sequence[Robot],
-    *,
-    max_limbs: int | None = None,
-    max_episode_steps: int = 1000,
-    seed: int | None = None,
-    num_threads: int | None = None,
-    robot_ids: Sequence[int] | None = None,
-    device: torch.device | str = "cpu",
-    world: str | None = None,
-) -> SMPEnv:
-    """The SMPENV benchmark's env factory (``Benchmark.make_env``); SMPENV has one world, so
-    ``world`` must be None."""
-    SMPENV_BENCHMARK.check_world(world)
-    return SMPEnv(
-        robots,
-        max_limbs,
-        max_episode_steps=max_episode_steps,
-        device=device,
-        seed=seed,
-        num_threads=num_threads,
-        robot_ids=robot_ids,
-    )
+#: The SMPENV benchmark's env factory (``Benchmark.make_env``): the class itself.
+make_smpenv = SMPEnv
 
 
 SMPENV_BENCHMARK = Benchmark(
     name="smpenv",
     catalogue="smpenv",
-    make_env=make_smpenv,
+    make_env=SMPEnv,
     preset="smpenv",
     limb_obs_dim=OBS_DIM,
     action_slots=ACTION_SLOTS,

@@ -58,7 +58,7 @@ class UnimalEnv(BatchedMujocoEnv):
     Args:
         robots: one UNIMAL :class:`~gcnt.morphology.Robot` per sub-env.
         max_limbs: K, the padded limb count (default: the largest robot; UNIMAL runs use 12).
-        world: "ft", "incline", "mt" or "obstacles".
+        world: "ft", "incline", "mt" or "obstacles" (None: FT).
         max_episode_steps: control steps before an episode is truncated (1000).
         device, seed, num_threads, robot_ids: see :class:`~gcnt.envs.base.BatchedMujocoEnv`.
         frame_skip: physics steps per control step (4).
@@ -72,7 +72,7 @@ class UnimalEnv(BatchedMujocoEnv):
         robots: Sequence[Robot],
         max_limbs: int | None = None,
         *,
-        world: str = "ft",
+        world: str | None = None,
         max_episode_steps: int = 1000,
         device: torch.device | str = "cpu",
         seed: int | None = None,
@@ -117,34 +117,14 @@ class UnimalEnv(BatchedMujocoEnv):
         return self._featurizer.hfield_seconds
 
 
-def make_unimal_env(
-    robots: Sequence[Robot],
-    *,
-    max_limbs: int | None = None,
-    max_episode_steps: int = 1000,
-    seed: int | None = None,
-    num_threads: int | None = None,
-    robot_ids: Sequence[int] | None = None,
-    device: torch.device | str = "cpu",
-    world: str | None = None,
-) -> UnimalEnv:
-    """The UNIMAL benchmark's env factory (``Benchmark.make_env``); ``world`` defaults to FT."""
-    return UnimalEnv(
-        robots,
-        max_limbs,
-        world=UNIMAL_BENCHMARK.check_world(world),
-        max_episode_steps=max_episode_steps,
-        device=device,
-        seed=seed,
-        num_threads=num_threads,
-        robot_ids=robot_ids,
-    )
+#: The UNIMAL benchmark's env factory (``Benchmark.make_env``): the class itself.
+make_unimal_env = UnimalEnv
 
 
 UNIMAL_BENCHMARK = Benchmark(
     name="unimal",
     catalogue="unimal",
-    make_env=make_unimal_env,
+    make_env=UnimalEnv,
     preset="unimal",
     limb_obs_dim=OBS_DIM,
     action_slots=ACTION_SLOTS,
