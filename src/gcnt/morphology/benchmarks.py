@@ -189,17 +189,26 @@ def smpenv_robot(name: str) -> Robot:
     return _load("smpenv", name)
 
 
-def _smpenv_check(root: Path) -> list[str]:
-    folder = root / "smpenv"
-    stale: list[str] = []
-    for name in SMPENV_ROBOTS:
-        path = folder / f"{name}.xml"
+def stale_files(
+    root: Path, expected: dict[str, str], folder: str, maker: str, kind: str
+) -> list[str]:
+    """Problems of a catalogue's files under the morphologies folder ``root``: each of
+    ``expected`` (relative path -> text) missing or different from what its ``maker`` writes,
+    and ``.xml`` files in ``root/folder`` that are not expected (not ``kind``)."""
+    problems: list[str] = []
+    for rel, text in expected.items():
+        path = root / rel
         if not path.is_file():
-            stale.append(f"{path}: missing")
-        elif path.read_text() != build_mjcf(name):
-            stale.append(f"{path}: differs from the builder's output")
-    extra = sorted(p.name for p in folder.glob("*.xml") if p.stem not in SMPENV_ROBOTS)
-    return stale + [f"{folder / n}: not an SMPENV robot" for n in extra]
+            problems.append(f"{path}: missing")
+        elif path.read_text() != text:
+            problems.append(f"{path}: differs from the {maker}'s output")
+    extra = sorted(p for p in (root / folder).glob("*.xml") if f"{folder}/{p.name}" not in expected)
+    return problems + [f"{p}: not {kind}" for p in extra]
+
+
+def _smpenv_check(root: Path) -> list[str]:
+    expected = {f"smpenv/{name}.xml": build_mjcf(name) for name in SMPENV_ROBOTS}
+    return stale_files(root, expected, "smpenv", "builder", "an SMPENV robot")
 
 
 SMPENV_CATALOGUE = Catalogue(

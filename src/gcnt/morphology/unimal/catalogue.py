@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from gcnt.morphology.benchmarks import Catalogue, morphologies_dir
+from gcnt.morphology.benchmarks import Catalogue, morphologies_dir, stale_files
 from gcnt.morphology.robot import Robot, RobotFileError, load_robot, robot_from_xml
 from gcnt.morphology.unimal.generate import generate
 from gcnt.morphology.unimal.mjcf import build_mjcf
@@ -105,16 +105,7 @@ def write_files(root: Path) -> list[Path]:
 
 def check_files(root: Path) -> list[str]:
     """Problems of the UNIMAL files under ``root`` (empty when they equal a regeneration)."""
-    expected = expected_files()
-    problems = []
-    for rel, text in expected.items():
-        path = root / rel
-        if not path.is_file():
-            problems.append(f"{path}: missing")
-        elif path.read_text() != text:
-            problems.append(f"{path}: differs from the generator's output")
-    extra = sorted(p for p in (root / FOLDER).glob("*.xml") if f"{FOLDER}/{p.name}" not in expected)
-    return problems + [f"{p}: not a generated UNIMAL robot" for p in extra]
+    return stale_files(root, expected_files(), FOLDER, "generator", "a generated UNIMAL robot")
 
 
 def _checked_in() -> list[str]:
