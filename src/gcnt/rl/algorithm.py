@@ -59,14 +59,15 @@ class Algorithm(ABC):
 
     #: its name in recipes (``algo:``)
     name: ClassVar[str] = ""
+    #: gradient updates so far (logged and checkpointed; an instance attribute once assigned, or
+    #: a property reading the algorithm's learner)
+    updates: int = 0
 
     def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:
         self.recipe = recipe
         self.config = recipe.algo_config
         self.env = env
         self.robots = list(robots)
-        #: gradient updates so far (logged and checkpointed)
-        self.updates = 0
 
     # ------------------------------------------------------------------ the env
     @classmethod

@@ -385,13 +385,8 @@ class PPO(Algorithm):
         self._t_end: float | None = None
 
     @property
-    def updates(self) -> int:
+    def updates(self) -> int:  # the learner counts them
         return self.learner.updates
-
-    @updates.setter
-    def updates(self, value: int) -> None:
-        if hasattr(self, "learner"):
-            self.learner.updates = value
 
     # ------------------------------------------------------------------ collection and learning
     def policy(self) -> NormalizedPolicy:

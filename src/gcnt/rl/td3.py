@@ -277,11 +277,6 @@ class TD3(Algorithm):
     def updates(self) -> int:  # the learner counts them
         return self.learner.updates
 
-    @updates.setter
-    def updates(self, value: int) -> None:
-        if hasattr(self, "learner"):
-            self.learner.updates = value
-
     def _frames_per_batch(self) -> int:
         return self.env.batch_size[0] * self.config.steps_per_batch
 
