@@ -282,19 +282,14 @@ class TD3(Algorithm):
 
     def collect_settings(self, env_steps: int) -> CollectSettings:
         c, device = self.config, self.recipe.device
-        explore = TensorDictSequential(
-            TensorChainModule(self.learner.actor, [ACTION]),  # the actor, at less call cost
-            AdditiveGaussianModule(
-                self.env.full_action_spec[ACTION].to(device),
-                sigma_init=c.exploration_noise,
-                sigma_end=c.exploration_noise,
-                annealing_num_steps=1,
-                action_key=ACTION,
-            ),
+        # the actor, at less call cost, plus Gaussian noise
+        explore = _with_noise(
+            TensorChainModule(self.learner.actor, [ACTION]),
+            self.env.full_action_spec[ACTION].to(device),
+            c.exploration_noise,
         )
         fpb = self._frames_per_batch()
-        random_left = max(0, c.init_random_frames - env_steps)
-        random_left = -(-random_left // fpb) * fpb  # whole collector batches
+        random_left = _whole_batches(max(0, c.init_random_frames - env_steps), fpb)
         return CollectSettings(explore, fpb, random_left)
 
     def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
@@ -316,7 +311,7 @@ class TD3(Algorithm):
         return {
             "num_envs": int(self.env.batch_size[0]),
             "frames_per_batch": fpb,
-            "init_random_frames": -(-c.init_random_frames // fpb) * fpb,
+            "init_random_frames": _whole_batches(c.init_random_frames, fpb),
             "buffer_per_robot": rb.per_robot_capacity(
                 len(self.robots), c.buffer_size_per_robot, c.buffer_total_size
             ),
@@ -379,13 +374,18 @@ class TD3(Algorithm):
         fast = TensorChainModule(actor, [ACTION])
         if deterministic:
             return fast
-        return TensorDictSequential(
-            fast,
-            AdditiveGaussianModule(
-                env.full_action_spec[ACTION].to(recipe.device),
-                sigma_init=recipe.algo_config.exploration_noise,
-                sigma_end=recipe.algo_config.exploration_noise,
-                annealing_num_steps=1,
-                action_key=ACTION,
-            ),
-        )
+        spec = env.full_action_spec[ACTION].to(recipe.device)
+        return _with_noise(fast, spec, recipe.algo_config.exploration_noise)
+
+
+def _with_noise(actor: TensorChainModule, spec, sigma: float) -> TensorDictSequential:
+    """``actor`` followed by constant Gaussian exploration noise of std ``sigma``."""
+    noise = AdditiveGaussianModule(
+        spec, sigma_init=sigma, sigma_end=sigma, annealing_num_steps=1, action_key=ACTION
+    )
+    return TensorDictSequential(actor, noise)
+
+
+def _whole_batches(frames: int, frames_per_batch: int) -> int:
+    """``frames`` rounded up to whole collector batches."""
+    return -(-frames // frames_per_batch) * frames_per_batch
