@@ -204,6 +204,7 @@ class PPOLearner:
         mb = min(o.minibatch_size, n)
         rb = self._buffer(n, mb)
         rb.extend(flat)
+        max_norm = o.max_grad_norm if o.max_grad_norm > 0 else float("inf")
         lr = self.lr_now()
         for group in self.opt.param_groups:
             group["lr"] = lr
@@ -223,10 +224,8 @@ class PPOLearner:
                     total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
                     self.opt.zero_grad(set_to_none=True)
                     total.backward()
-                    if o.max_grad_norm > 0:
-                        grad = float(torch.nn.utils.clip_grad_norm_(self.params, o.max_grad_norm))
-                    else:
-                        grad = float(torch.nn.utils.clip_grad_norm_(self.params, float("inf")))
+                    # the gradient norm is logged; an infinite bound measures without clipping
+                    grad = float(torch.nn.utils.clip_grad_norm_(self.params, max_norm))
                     self.opt.step()
                     self.updates += 1
                     yield {
@@ -369,6 +368,9 @@ class PPO(Algorithm):
             )
         self.frames_per_batch = o.num_envs * o.steps_per_env
         self.iterations = max(1, -(-recipe.collector.total_frames // self.frames_per_batch))
+        self.minibatches_per_epoch = self.frames_per_batch // min(
+            o.minibatch_size, self.frames_per_batch
+        )
         self.learner = PPOLearner(recipe, env, self.iterations)
         draw = base_env(env).robot_pool_sampler
         self.draw: RobotDraw | None = draw if isinstance(draw, RobotDraw) else None
@@ -436,13 +438,14 @@ class PPO(Algorithm):
         self.sampler.end_iteration()
         update_s = time.perf_counter() - t0
         stop = self.learner.stopped_at
-        mb_per_epoch = self.frames_per_batch // min(o.minibatch_size, self.frames_per_batch)
         self._extras = {
             "lr": lr,
             "iteration": self.learner.iteration,
             "kl_last": self.learner.last_kl,
             "kl_stopped": float(stop is not None),
-            "epochs_done": (stop[0] + stop[1] / mb_per_epoch) if stop else float(o.epochs),
+            "epochs_done": (stop[0] + stop[1] / self.minibatches_per_epoch)
+            if stop
+            else float(o.epochs),
             "update_s": update_s,
             "collect_env_steps_per_s": data.numel() / collect_s if collect_s > 0 else float("nan"),
             "reward_scale_std": self.scaler.std if self.scaler is not None else 1.0,
@@ -460,8 +463,7 @@ class PPO(Algorithm):
             "num_envs": o.num_envs,
             "frames_per_batch": self.frames_per_batch,
             "iterations": self.iterations,
-            "minibatches_per_epoch": self.frames_per_batch
-            // min(o.minibatch_size, self.frames_per_batch),
+            "minibatches_per_epoch": self.minibatches_per_epoch,
             "kl_stop": self.learner.kl_stop,
         }
 
