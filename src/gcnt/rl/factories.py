@@ -17,12 +17,9 @@ from gcnt.envs.benchmark import Benchmark, get_benchmark
 from gcnt.morphology import Robot
 from gcnt.morphology.benchmarks import resolve_robots
 from gcnt.nn.graph_lookup import is_table_key
-from gcnt.nn.keys import ACTION, OBS
+from gcnt.nn.keys import ACTION, HFIELD, OBS
 from gcnt.nn.registry import make_network
 from gcnt.recipes import Recipe, RecipeError
-
-#: root key of the height map, when a benchmark's world has one
-HFIELD = "hfield"
 
 
 def benchmark_of(recipe: Recipe) -> Benchmark:
