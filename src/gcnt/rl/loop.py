@@ -192,8 +192,9 @@ def train(
                     for losses in algo.process(data, env_steps):
                         stats.add_losses(losses)
                         _check_losses(run, losses, env_steps, algo.updates)
-                    if not _all_finite(algo.policy_state()):  # before the policy acts again
-                        bad = _non_finite(algo.policy_state())
+                    policy = algo.policy_state()
+                    if not _all_finite(policy):  # before the policy acts again
+                        bad = _non_finite(policy)
                         raise _diverged(run, f"non-finite policy weights in {bad}", env_steps)
                     if multi:
                         collector.update_policy_weights_()
