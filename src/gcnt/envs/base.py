@@ -441,42 +441,20 @@ class BatchedMujocoEnv(EnvBase):
         self.table = robot_table(self.distinct_robots, max_limbs, a_slots, context=context)
         self.max_limbs = k = int(self.table["limbs", "mask"].shape[1])
 
-        # Sub-envs.
+        # Sub-envs (their control layout and the featuriser's copies: see _layout).
         self._sims: list[_Sim] = []
-        ctrl_rows, ctrl_limbs, ctrl_slots, offset = [], [], [], 0
         for i, r in enumerate(robots):
-            model = models[i]
-            data = mujoco.MjData(model)
-            limb_of, slot_of = _actuator_slots(r, model)
-            ctrl_rows.append(np.full(model.nu, i))
-            ctrl_limbs.append(limb_of)
-            ctrl_slots.append(slot_of)
+            data = mujoco.MjData(models[i])
             self._sims.append(
                 _Sim(
-                    index=i,
-                    robot=r,
-                    model=model,
-                    data=data,
-                    rules=sub_rules[i],
-                    ctrl_slice=slice(offset, offset + model.nu),
-                    ctrl=data.ctrl,
-                    warn=data.warning.number,
+                    i, r, models[i], data, sub_rules[i], slice(0, 0), data.ctrl, data.warning.number
                 )
             )
-            offset += model.nu
-        self._ctrl_index = (
-            np.concatenate(ctrl_rows),
-            np.concatenate(ctrl_limbs),
-            np.concatenate(ctrl_slots),
-        )
-        self.dt = np.array([dts[int(lid)] for lid in self.local_ids])
         self._elapsed = np.zeros(n, np.int64)
         self._blown = np.zeros(n, bool)
         self._warned = np.zeros(n, bool)  # a blow-up was reported this episode
         self._last_terminated = np.zeros(n, bool)
         self._last_truncated = np.zeros(n, bool)
-        for s in self._sims:
-            s.copies = f.bind(s.index, s.data)
         self._kinematics = tuple(f.kinematics)
         # Written per sub-env by the physics threads: reward and termination.
         self._reward = np.zeros(n)
@@ -495,15 +473,13 @@ class BatchedMujocoEnv(EnvBase):
         }
         self._limb_batch = torch.Size([n, k])
 
-        # Static per-sub-env tensors (the graph half of the contract).
-        local = self.local_ids
+        # Static per-sub-env tensors (the graph half of the contract), filled by _layout.
         keys = [("limbs", "mask"), ("limbs", "type"), ("limbs", "action_mask")]
         if context is not None:
             keys.append(("limbs", "context"))
         keys += [("graph", "adj"), ("graph", "dist"), ("graph", "wl")]
-        self._static = {key: self.table[key][local].to(self.device) for key in keys}
-        self._morph_id_dev = self.morph_ids.to(self.device)
-        self._no_motor = ~self.table["limbs", "action_mask"][local].numpy()
+        self._static = dict.fromkeys(keys)
+        self._layout()
 
         self._setup_threads(num_threads)
         self._make_specs()
@@ -941,9 +917,17 @@ class BatchedMujocoEnv(EnvBase):
         """Rebuild the featuriser, control layout and static outputs for the current robots."""
         sims = self._sims
         self.robots = tuple(s.robot for s in sims)
-        f = self._featurizer = self._featurizer_factory(
+        self._featurizer = self._featurizer_factory(
             self.robots, [s.model for s in sims], self.max_limbs
         )
+        self._layout()
+        for s in sims:  # fill the new featuriser's buffers (kinematics are idempotent)
+            self._refresh(s)
+
+    def _layout(self) -> None:
+        """What follows from the current sub-envs and featuriser: the flat control layout, the
+        featuriser's copy pairs, the control periods and the static outputs."""
+        sims, f = self._sims, self._featurizer
         rows, limbs, slots, offset = [], [], [], 0
         cache = self._actuator_cache  # per robot, kept over resets
         for s in sims:
@@ -963,8 +947,6 @@ class BatchedMujocoEnv(EnvBase):
         self._static = {key: self.table[key][local].to(self.device) for key in self._static}
         self._morph_id_dev = self.morph_ids.to(self.device)
         self._no_motor = ~self.table["limbs", "action_mask"][local].numpy()
-        for s in sims:  # fill the new featuriser's buffers (kinematics are idempotent)
-            self._refresh(s)
 
     # ------------------------------------------------------------------ public helpers
     def close(self, *, raise_if_closed: bool = True) -> None:
