@@ -129,9 +129,8 @@ def run(args: argparse.Namespace) -> int:
     _, td = _env_round(env, td, actions, 20)  # warm up both
     raw.round(20)
     env_rates, raw_rates = [], []
-    hfield_s = getattr(env, "hfield_seconds", None)
+    hfield_start = getattr(env, "hfield_seconds", None)
     env_s = 0.0
-    hfield_start = hfield_s
     for _ in range(args.rounds):
         dt, td = _env_round(env, td, actions, args.steps)
         env_s += dt
