@@ -90,25 +90,31 @@ def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
     return out
 
 
-def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
+def _train_quietly(recipe, log_interval: int) -> list[dict]:
+    """Train ``recipe`` in a temporary run directory (no logger backend, progress bar,
+    checkpoints or evaluation; a metrics row every ``log_interval`` steps); its metrics rows."""
     from gcnt.rl.loop import train
     from gcnt.rl.run_dir import RunDir
 
     with tempfile.TemporaryDirectory() as tmp:
         recipe.run_dir = tmp
-        recipe.td3.init_random_frames = warmup
-        recipe.collector.total_frames = warmup + steps
-        recipe.td3.steps_per_batch = 1
         recipe.logger.backend, recipe.logger.progress = "none", False
-        recipe.logger.log_interval = max(1, warmup)
+        recipe.logger.log_interval = log_interval
         recipe.checkpoint_interval = 10**12
         recipe.eval.episodes = 0
         run = RunDir(tmp)
         run.create(recipe)
         train(recipe, run)
-        all_rows = run.read_metrics()
-        rows = [r for r in all_rows if r["env_steps"] > warmup]
-        before = [r for r in all_rows if r["env_steps"] <= warmup]
+        return run.read_metrics()
+
+
+def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
+    recipe.td3.init_random_frames = warmup
+    recipe.collector.total_frames = warmup + steps
+    recipe.td3.steps_per_batch = 1
+    all_rows = _train_quietly(recipe, max(1, warmup))
+    rows = [r for r in all_rows if r["env_steps"] > warmup]
+    before = [r for r in all_rows if r["env_steps"] <= warmup]
     span = rows[-1]["env_steps"] - warmup
     secs = sum(
         (r["env_steps"] - p["env_steps"]) / r["env_steps_per_s"]
@@ -200,22 +206,10 @@ def ppo_bare_rate(recipe) -> dict:
 
 
 def ppo_end_to_end(recipe, iterations: int) -> dict:
-    from gcnt.rl.loop import train
-    from gcnt.rl.run_dir import RunDir
-
     fpb = recipe.algo_config.num_envs * recipe.algo_config.steps_per_env
-    with tempfile.TemporaryDirectory() as tmp:
-        recipe.run_dir = tmp
-        recipe.algo_config.kl_stop = 0.0
-        recipe.collector.total_frames = fpb * max(2, iterations)
-        recipe.logger.backend, recipe.logger.progress = "none", False
-        recipe.logger.log_interval = fpb
-        recipe.checkpoint_interval = 10**12
-        recipe.eval.episodes = 0
-        run = RunDir(tmp)
-        run.create(recipe)
-        train(recipe, run)
-        rows = run.read_metrics()[1:]  # the first iteration warms up
+    recipe.algo_config.kl_stop = 0.0
+    recipe.collector.total_frames = fpb * max(2, iterations)
+    rows = _train_quietly(recipe, fpb)[1:]  # the first iteration warms up
     secs = sum(fpb / r["env_steps_per_s"] for r in rows)
     collect = [r["collect_env_steps_per_s"] for r in rows if r.get("collect_env_steps_per_s")]
     return {
