@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gcnt.analysis.runs import Run
+from gcnt.analysis.runs import CHECKPOINT, RECIPE_FILE, Run
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ class RunSpec:
     def refresh(self) -> None:
         """Set the training state from the run directory (not for a run in progress)."""
         path = Path(self.run_dir)
-        if not (path / "recipe.yaml").is_file():
+        if not (path / RECIPE_FILE).is_file():
             if self.state not in ("failed",):
                 self.state = "pending"
             return
@@ -122,7 +122,7 @@ def commands(spec: RunSpec) -> list[tuple[str, list[str]]]:
     out: list[tuple[str, list[str]]] = []
     run_dir = Path(spec.run_dir)
     if spec.state != "done":
-        if (run_dir / "checkpoints" / "last.pt").is_file():
+        if (run_dir / CHECKPOINT).is_file():
             out.append(("train", [*gcnt_command(), "train", "--resume", spec.run_dir]))
         else:
             out.append(("train", [*gcnt_command(), "train", spec.recipe, *spec.overrides]))
@@ -135,14 +135,22 @@ def commands(spec: RunSpec) -> list[tuple[str, list[str]]]:
 # ----------------------------------------------------------------------------- the grid
 
 
+def _method_override(override: str) -> tuple[str, str] | None:
+    """``METHOD:key=value`` -> (METHOD, ``key=value``); a plain override -> None."""
+    head, sep, rest = override.partition(":")
+    if sep and "=" in rest and "=" not in head and "." not in head:
+        return head, rest
+    return None
+
+
 def _split_method_overrides(
     overrides: Sequence[str], methods: Sequence[str]
 ) -> dict[str, list[str]]:
     """``METHOD:key=value`` applies to that method only; plain ``key=value`` to all."""
     per: dict[str, list[str]] = {m: [] for m in methods}
     for o in overrides:
-        head, sep, rest = o.partition(":")
-        if sep and "=" in rest and "=" not in head and "." not in head:
+        if (split := _method_override(o)) is not None:
+            head, rest = split
             if head not in per:
                 raise SweepError(
                     f"override {o!r} names method {head!r}, which is not in the sweep "
@@ -182,7 +190,7 @@ def expand(
         if not recipe_path.is_file():
             raise SweepError(f"{recipe_path}: no such recipe file")
         try:
-            base = load_recipe(recipe_path, list(_plain(overrides)))
+            base = load_recipe(recipe_path, _plain(overrides))
         except RecipeError as e:
             raise SweepError(str(e)) from None
         ms = list(methods or [base.network.name])
@@ -193,8 +201,7 @@ def expand(
                     r = load_recipe(recipe_path, [*per_method[m], f"network.name={m}", f"seed={s}"])
                 except RecipeError as e:
                     raise SweepError(str(e)) from None
-                task = str(getattr(r, "task", None) or getattr(r, "benchmark", "custom"))
-                algo = str(getattr(r, "algo", "td3"))
+                task, algo = str(r.task or "custom"), str(r.algo)
                 run_id = f"{slug(task)}/{algo}-{m}/seed{s}"
                 if run_id in seen:
                     raise SweepError(
@@ -232,12 +239,7 @@ def expand(
 
 def _plain(overrides: Sequence[str]) -> list[str]:
     """Overrides that apply to every method (``METHOD:key=value`` ones left out)."""
-    out = []
-    for o in overrides:
-        head, sep, rest = o.partition(":")
-        if not (sep and "=" in rest and "=" not in head and "." not in head):
-            out.append(o)
-    return out
+    return [o for o in overrides if _method_override(o) is None]
 
 
 # ----------------------------------------------------------------------------- manifest
@@ -304,9 +306,7 @@ class Manifest:
         width = max(len(r.id) for r in self.runs)
         lines = [f"{'run':<{width}}  {'state':<9}  {'steps':>9}  evaluations"]
         for r in self.runs:
-            steps = (
-                Run(r.run_dir).last_env_steps() if Path(r.run_dir, "recipe.yaml").is_file() else 0
-            )
+            steps = Run(r.run_dir).last_env_steps() if Path(r.run_dir, RECIPE_FILE).is_file() else 0
             ev = ", ".join(f"{k}: {r.eval_state.get(k, 'pending')}" for k in r.evals) or "-"
             lines.append(f"{r.id:<{width}}  {r.state:<9}  {steps:>9}  {ev}")
         return "\n".join(lines)
@@ -540,14 +540,9 @@ def run_submitit(manifest: Manifest, opts: ClusterOptions, *, wait: bool = True)
         params["gpus_per_node"] = opts.gpus_per_run
     if opts.mem_gb:
         params["mem_gb"] = opts.mem_gb
-    if opts.partition:
-        params["slurm_partition"] = opts.partition
-    if opts.account:
-        params["slurm_account"] = opts.account
-    if opts.qos:
-        params["slurm_qos"] = opts.qos
-    if opts.constraint:
-        params["slurm_constraint"] = opts.constraint
+    for key in ("partition", "account", "qos", "constraint"):
+        if value := getattr(opts, key):
+            params[f"slurm_{key}"] = value
     params.update(opts.extra)
     ex.update_parameters(**params)
     for spec in todo:
