@@ -164,9 +164,7 @@ def run(args: argparse.Namespace) -> int:
                         rec = load_recipe(r)
                     except RecipeError as e:
                         raise SweepError(str(e)) from None
-                    tasks.append(
-                        slug(str(getattr(rec, "task", None) or getattr(rec, "benchmark", "x")))
-                    )
+                    tasks.append(slug(str(rec.task or "x")))
                 args.dir = Path("sweeps") / "-".join(dict.fromkeys(tasks))
             sweep_dir = args.dir
             specs = expand(
