@@ -216,7 +216,10 @@ def test_tables_markdown() -> None:
     md = rows_to_markdown([{"method": "gcnt", "actor": 10, "critic": 5, "paper": None}])
     assert "| gcnt | 10 | 5 | 15 | – |" in md
     text, rows = params_table("smpenv")
-    assert "gcnt" in text and "swat" in text
+    gcnt = next(r for r in rows if r["method"] == "gcnt")
+    assert text.startswith("| method | actor | critic | total | paper |")
+    assert f"| gcnt | {gcnt['actor']:,} | {gcnt['critic']:,} | {gcnt['total']:,} |" in text
+    assert "| swat |" in text
 
 
 def test_eval_labels_old_and_new_file_names(sweep: Path) -> None:
