@@ -23,9 +23,12 @@ from gcnt.analysis.runs import (
 )
 
 
-def seed_score(run: Run, robot: str, label: str | None = None) -> tuple[float, EvalRecord] | None:
-    """A run's mean return on ``robot`` from its latest, largest evaluation of it."""
-    evals = [e for e in run.evals() if robot in e.robots and (label is None or e.matches(label))]
+def seed_score(
+    evals: Sequence[EvalRecord], robot: str, label: str | None = None
+) -> tuple[float, EvalRecord] | None:
+    """A run's mean return on ``robot`` from its latest, largest evaluation of it (``evals``: the
+    run's evaluations, ``Run.evals()``)."""
+    evals = [e for e in evals if robot in e.robots and (label is None or e.matches(label))]
     if not evals:
         return None
     best = max(evals, key=lambda e: (e.env_steps, int(e.robots[robot].get("episodes") or 0)))
@@ -53,6 +56,7 @@ def zero_shot_table(
     for r in runs:
         by_task[r.task].append(r)
     out: dict[str, Any] = {}
+    evals = {r.path: r.evals() for r in runs}  # each run's eval files, read once
     for task, members in by_task.items():
         names = list(robots) if robots else test_robots(members)
         methods = sorted({labels[r.path] for r in members}, key=method_key)
@@ -65,7 +69,7 @@ def zero_shot_table(
                 for r in members:
                     if labels[r.path] != m:
                         continue
-                    got = seed_score(r, robot, label)
+                    got = seed_score(evals[r.path], robot, label)
                     if got is not None:
                         per_seed[str(r.seed)] = got[0]
                         sources.append(str(got[1].path))

@@ -42,10 +42,11 @@ def _evaluate(runs, episodes: int, force: bool) -> int:
         if not names:
             log.warning("%s: the recipe has no test robots; skipped", r.path)
             continue
+        evals = r.evals()
         if (
             not force
-            and all(seed_score(r, n) for n in names)
-            and any(e.matches("test") for e in r.evals())
+            and all(seed_score(evals, n) for n in names)
+            and any(e.matches("test") for e in evals)
         ):
             continue
         argv = [*gcnt_command(), "eval", str(r.path), "--robots", "test"]
