@@ -305,3 +305,31 @@ def test_smpenv_benchmark_builds_its_env():
     assert env.max_limbs == 5
     with pytest.raises(ValueError, match="smpenv.*no worlds"):
         bench.make_env([smpenv_robot("walker_2_main")], world="incline")
+
+
+def test_spinning_openmp_is_reported_once(monkeypatch, caplog):
+    import gcnt
+    from gcnt.envs import base
+
+    monkeypatch.setattr(gcnt, "OPENMP_SPINS", True)
+    monkeypatch.setattr(base, "_openmp_warned", False)
+    with caplog.at_level(logging.WARNING, logger="gcnt.envs.base"):
+        for _ in range(2):
+            toy_env(num_threads=2).close()
+        toy_env(num_threads=1).close()
+    lines = [r.getMessage() for r in caplog.records if "OMP_WAIT_POLICY" in r.getMessage()]
+    assert len(lines) == 1 and "import gcnt first" in lines[0]
+
+
+def test_gcnt_sets_a_passive_openmp_wait_policy_before_torch():
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    code = "import gcnt, os, torch; print(os.environ['OMP_WAIT_POLICY'], gcnt.OPENMP_SPINS)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.stdout.split() == ["PASSIVE", "False"], out.stderr
+    code = "import torch, gcnt; print(gcnt.OPENMP_SPINS)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.stdout.split() == ["True"], out.stderr

@@ -73,6 +73,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+import gcnt
 from gcnt.envs.robot_table import RobotTooLargeError, robot_table
 from gcnt.morphology import GLOBAL_LIMB_TYPES, Robot
 
@@ -287,6 +288,23 @@ class _StepQueue:
         self._done.wait()
         if self._error is not None:
             raise self._error
+
+
+_openmp_warned = False
+
+
+def _warn_if_openmp_spins() -> None:
+    """Log once per process when torch's OpenMP workers spin (see ``gcnt.OPENMP_SPINS``): they
+    take the cores the physics threads need, which can make a step several times slower."""
+    global _openmp_warned
+    if _openmp_warned or not gcnt.OPENMP_SPINS:
+        return
+    _openmp_warned = True
+    log.warning(
+        "torch was imported before gcnt without OMP_WAIT_POLICY: torch's OpenMP threads spin "
+        "between ops on the cores the physics threads use (env steps can be several times "
+        "slower); import gcnt first or set OMP_WAIT_POLICY=PASSIVE before starting Python"
+    )
 
 
 def _robot_key(r: Robot) -> tuple[str, str]:
@@ -525,6 +543,8 @@ class BatchedMujocoEnv(EnvBase):
                 num_threads = os.cpu_count() or 1
         self.num_threads = max(1, min(int(num_threads), n))
         self._auto = self._auto and self.num_threads > 1
+        if self.num_threads > 1:
+            _warn_if_openmp_spins()
         self._use, self._tick = self.num_threads, 0
         self._period = _TUNE_PERIOD
         self._probe_at = _TUNE_PERIOD
