@@ -29,7 +29,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.accelerate import collector_kwargs
-from gcnt.rl.algorithm import Algorithm, get_algorithm
+from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of, train_robots
 from gcnt.rl.run_dir import (
@@ -138,47 +138,18 @@ def train(
     prepared = prepared or prepare(recipe)
     robots, env, algo = prepared.robots, prepared.env, prepared.algo
 
-    env_steps = 0
-    if resume:
-        state = run.load_checkpoint(map_location=recipe.device)
-        try:
-            algo.load_state_dict(state["learner"])
-        except (ValueError, RuntimeError, KeyError) as e:
-            raise CheckpointError(
-                f"{run.checkpoint_path} does not fit the recipe's networks (was the recipe "
-                f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
-            ) from None
-        env_steps = state["env_steps"]
-        set_rng_state(state["rng"])
-        if state.get("has_buffers"):
-            algo.load_buffers(run.buffers_dir)
-        run.truncate_metrics(env_steps)
-        log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, algo.updates)
+    env_steps = resume_checkpoint(run, algo, recipe.device) if resume else 0
     run.save_recipe(recipe)  # after the checkpoint was found to fit it
     if resume:
         env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume
     total = recipe.collector.total_frames
-    next_log = _next_multiple(env_steps, recipe.logger.log_interval)
-    next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
-    next_eval = _next_multiple(env_steps, recipe.eval.interval) if recipe.eval.interval else None
-
+    cadence = Cadence(recipe, env_steps)
     logger = make_logger(recipe, run)
     stats = TrainStats([robot.name for robot in robots], env_steps, algo.updates)
     if env_steps < total:
         settings = algo.collect_settings(env_steps)
         multi = settings.env_makers is not None
-        collector = (MultiSyncCollector if multi else Collector)(
-            settings.env_makers if multi else env,
-            settings.policy,
-            frames_per_batch=settings.frames_per_batch,
-            total_frames=-1,
-            init_random_frames=settings.init_random_frames,
-            policy_device=recipe.device,  # networks on the recipe's device, MuJoCo on the CPU
-            env_device="cpu",
-            storing_device="cpu",
-            auto_register_policy_transforms=False,  # the policies need no InitTracker
-            **collector_kwargs(recipe.compile),  # compile.policy_compile / policy_cudagraphs
-        )
+        collector = make_collector(recipe, env, settings)
         if multi:
             env.close()  # the workers build their own envs
         bar = tqdm(total=total, initial=env_steps, unit="step", disable=not recipe.logger.progress)
@@ -192,26 +163,13 @@ def train(
                     for losses in algo.process(data, env_steps):
                         stats.add_losses(losses)
                         _check_losses(run, losses, env_steps, algo.updates)
-                    policy = algo.policy_state()
-                    if not _all_finite(policy):  # before the policy acts again
-                        bad = _non_finite(policy)
-                        raise _diverged(run, f"non-finite policy weights in {bad}", env_steps)
+                    check_policy(run, algo, env_steps)  # before the policy acts again
                     if multi:
                         collector.update_policy_weights_()
-
-                    last = env_steps >= total
-                    if env_steps >= next_log or last:
-                        row = {**stats.row(env_steps, algo.updates), **algo.log_extras()}
-                        _log_row(run, logger, row)
+                    row = cadence.after_batch(recipe, run, algo, logger, stats, env_steps)
+                    if row is not None:
                         bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
-                        next_log = _next_multiple(env_steps, recipe.logger.log_interval)
-                    if env_steps >= next_ckpt or last:
-                        _checkpoint(run, algo, env_steps)
-                        next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
-                    if next_eval is not None and env_steps >= next_eval and not last:
-                        _evaluate(recipe, run, algo, logger, env_steps)
-                        next_eval = _next_multiple(env_steps, recipe.eval.interval)
-                    if last:
+                    if env_steps >= total:
                         break
             finally:
                 bar.close()
@@ -219,10 +177,97 @@ def train(
     else:
         log.info("%s already trained %d of %d env steps; nothing to do", run.path, env_steps, total)
         env.close()
+    finish(recipe, run, algo, logger, env_steps)
+    return run
+
+
+def resume_checkpoint(run: RunDir, algo: Algorithm, device: str) -> int:
+    """Load the run's checkpoint into ``algo`` (learner state, global RNG state, buffers) and
+    drop the metrics rows logged after it; returns its env steps."""
+    state = run.load_checkpoint(map_location=device)
+    try:
+        algo.load_state_dict(state["learner"])
+    except (ValueError, RuntimeError, KeyError) as e:
+        raise CheckpointError(
+            f"{run.checkpoint_path} does not fit the recipe's networks (was the recipe "
+            f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
+        ) from None
+    env_steps = state["env_steps"]
+    set_rng_state(state["rng"])
+    if state.get("has_buffers"):
+        algo.load_buffers(run.buffers_dir)
+    run.truncate_metrics(env_steps)
+    log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, algo.updates)
+    return env_steps
+
+
+def make_collector(recipe: Recipe, env: EnvBase, settings: CollectSettings):
+    """The torchrl collector of ``settings`` over ``env`` (or over its worker env makers)."""
+    multi = settings.env_makers is not None
+    return (MultiSyncCollector if multi else Collector)(
+        settings.env_makers if multi else env,
+        settings.policy,
+        frames_per_batch=settings.frames_per_batch,
+        total_frames=-1,
+        init_random_frames=settings.init_random_frames,
+        policy_device=recipe.device,  # networks on the recipe's device, MuJoCo on the CPU
+        env_device="cpu",
+        storing_device="cpu",
+        auto_register_policy_transforms=False,  # the policies need no InitTracker
+        **collector_kwargs(recipe.compile),  # compile.policy_compile / policy_cudagraphs
+    )
+
+
+def check_policy(run: RunDir, algo: Algorithm, env_steps: int) -> None:
+    """Stop (TrainingDivergedError) when the policy's weights are not all finite."""
+    policy = algo.policy_state()
+    if not _all_finite(policy):
+        raise _diverged(run, f"non-finite policy weights in {_non_finite(policy)}", env_steps)
+
+
+class Cadence:
+    """When a run logs, checkpoints and evaluates next (env-step thresholds from the recipe)."""
+
+    def __init__(self, recipe: Recipe, env_steps: int) -> None:
+        self.total = recipe.collector.total_frames
+        self.next_log = _next_multiple(env_steps, recipe.logger.log_interval)
+        self.next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
+        self.next_eval = (
+            _next_multiple(env_steps, recipe.eval.interval) if recipe.eval.interval else None
+        )
+
+    def after_batch(
+        self,
+        recipe: Recipe,
+        run: RunDir,
+        algo: Algorithm,
+        logger,
+        stats: TrainStats,
+        env_steps: int,
+    ) -> dict | None:
+        """Log, checkpoint and evaluate, each when due, after a batch that brought the run to
+        ``env_steps`` (the last batch logs and checkpoints; its evaluation is
+        :func:`finish`'s); returns the logged row, if one was."""
+        last = env_steps >= self.total
+        row = None
+        if env_steps >= self.next_log or last:
+            row = {**stats.row(env_steps, algo.updates), **algo.log_extras()}
+            _log_row(run, logger, row)
+            self.next_log = _next_multiple(env_steps, recipe.logger.log_interval)
+        if env_steps >= self.next_ckpt or last:
+            _checkpoint(run, algo, env_steps)
+            self.next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
+        if self.next_eval is not None and env_steps >= self.next_eval and not last:
+            _evaluate(recipe, run, algo, logger, env_steps)
+            self.next_eval = _next_multiple(env_steps, recipe.eval.interval)
+        return row
+
+
+def finish(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int) -> None:
+    """The final evaluation, and the logger's run closed."""
     _evaluate(recipe, run, algo, logger, env_steps)
     if logger is not None and hasattr(getattr(logger, "experiment", None), "finish"):
         logger.experiment.finish()
-    return run
 
 
 def _next_multiple(x: int, every: int) -> int:

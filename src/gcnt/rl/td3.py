@@ -73,10 +73,7 @@ class TD3Learner:
         self.critics = torch.nn.ModuleList(make_net(recipe, env, "td3_critic") for _ in range(2))
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
-        self.f_actor = TensorChain(self.actor)
-        self.f_critics = [TensorChain(c) for c in self.critics]
-        self.f_target_actor = TensorChain(self.target_actor)
-        self.f_target_critics = [TensorChain(c) for c in self.target_critics]
+        self._chains()
         self.actor_params = list(self.actor.parameters())
         self.critic_params = list(self.critics.parameters())
         self._online = self.actor_params + self.critic_params
@@ -88,6 +85,28 @@ class TD3Learner:
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
 
+    def _chains(self) -> None:
+        """The plain-tensor calls of the four networks."""
+        self.f_actor = TensorChain(self.actor)
+        self.f_critics = [TensorChain(c) for c in self.critics]
+        self.f_target_actor = TensorChain(self.target_actor)
+        self.f_target_critics = [TensorChain(c) for c in self.target_critics]
+
+    def loss_shell(self) -> TD3Learner:
+        """A learner with copies of this one's four networks and settings, and no optimiser or
+        step: its :meth:`critic_loss` and :meth:`actor_loss` run with whatever parameters are
+        swapped into its networks (``gcnt.rl.stacked`` swaps each seed's in, leaving the seeds'
+        own modules untouched)."""
+        shell = object.__new__(type(self))
+        shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
+        shell.device = self.device
+        shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
+        shell.target_actor = copy.deepcopy(self.target_actor)
+        shell.target_critics = copy.deepcopy(self.target_critics)
+        shell._chains()
+        shell.updates = self.updates
+        return shell
+
     # ------------------------------------------------------------------ the two steps
     def _inputs(self, batch: TensorDictBase, next_step: bool) -> dict:
         pre = ("next",) if next_step else ()
@@ -97,13 +116,22 @@ class TD3Learner:
             out[HFIELD] = hfield
         return out
 
-    def critic_loss(self, batch: TensorDictBase) -> torch.Tensor:
-        """The twin-critic loss on ``batch`` (draws the target-smoothing noise first)."""
+    def critic_loss(
+        self,
+        batch: TensorDictBase,
+        noise: torch.Tensor | None = None,
+        morph_id: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """The twin-critic loss on ``batch``. ``noise``: the target-smoothing noise (drawn here
+        first when not given, as :func:`target_noise`); ``morph_id``: the samples' robots (read
+        from ``batch`` when not given)."""
         o = self.config
-        robots = self.f_critics[0].robot_batch(batch.get(MORPH_ID), self.f_actor)
+        ids = batch.get(MORPH_ID) if morph_id is None else morph_id
+        robots = self.f_critics[0].robot_batch(ids, self.f_actor)
         mask = robots.gathered(MASK)
         action = batch.get(ACTION)
-        noise = target_noise(action, o.policy_noise, o.noise_clip)
+        if noise is None:
+            noise = target_noise(action, o.policy_noise, o.noise_clip)
         with autocast(self.accel, self.device):
             with torch.no_grad():
                 nxt = self._inputs(batch, next_step=True)
@@ -122,9 +150,13 @@ class TD3Learner:
             q = tuple(f(now, robots)[LIMB_Q] for f in self.f_critics)
             return twin_critic_loss(q, target.to(q[0].dtype), mask).to(action.dtype)
 
-    def actor_loss(self, batch: TensorDictBase) -> torch.Tensor:
-        """-Q1 of the actor's action on ``batch``, over real limbs."""
-        robots = self.f_actor.robot_batch(batch.get(MORPH_ID), self.f_critics[0])
+    def actor_loss(
+        self, batch: TensorDictBase, morph_id: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """-Q1 of the actor's action on ``batch``, over real limbs (``morph_id``: as in
+        :meth:`critic_loss`)."""
+        ids = batch.get(MORPH_ID) if morph_id is None else morph_id
+        robots = self.f_actor.robot_batch(ids, self.f_critics[0])
         with autocast(self.accel, self.device):
             now = self._inputs(batch, next_step=False)
             now[ACTION] = self.f_actor(now, robots)[ACTION]
