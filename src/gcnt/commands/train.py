@@ -1,4 +1,5 @@
-"""``gcnt train RECIPE [key=value ...]`` and ``gcnt train --resume RUN_DIR [key=value ...]``."""
+"""``gcnt train RECIPE [key=value ...]``, ``gcnt train RECIPE --seeds 0,1,2 [key=value ...]`` and
+``gcnt train --resume RUN_DIR [key=value ...]``."""
 
 from __future__ import annotations
 
@@ -16,12 +17,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="dotted overrides, e.g. network.name=swat seed=2 td3.lr=3e-4 algo=ppo",
     )
     p.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR")
+    p.add_argument(
+        "--seeds",
+        metavar="S1,S2,...",
+        help="train these seeds together in this process (TD3, td3.schedule=mixed): networks "
+        "stacked and updated in one step; one run directory per seed (resume each on its own)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
     from gcnt.rl.run_dir import RunDir
 
+    if args.seeds is not None:
+        return _run_seeds(args)
     if args.resume:
         overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
         run_dir = RunDir(args.resume)
@@ -47,4 +56,22 @@ def run(args: argparse.Namespace) -> int:
             log.info("metrics of the attempt without a checkpoint moved to %s", aside)
     train(recipe, run_dir, resume=resume, prepared=prepared)
     print(f"run directory: {run_dir.path}")
+    return 0
+
+
+def _run_seeds(args: argparse.Namespace) -> int:
+    from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.rl.stacked_loop import parse_seeds, seed_recipes, train_seeds
+
+    if args.resume:
+        raise RecipeError(
+            "--seeds starts new runs; resume each seed's run on its own: gcnt train --resume "
+            "RUN_DIR"
+        )
+    if not args.recipe:
+        raise RecipeError("--seeds: give a recipe file")
+    recipe = load_recipe(args.recipe, args.overrides)
+    runs = train_seeds(seed_recipes(recipe, parse_seeds(args.seeds)))
+    for run in runs:
+        print(f"run directory: {run.path}")
     return 0

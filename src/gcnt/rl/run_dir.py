@@ -193,8 +193,9 @@ def check_logger(recipe: Recipe) -> None:
         )
 
 
-def make_logger(recipe: Recipe, run: RunDir):
-    """torchrl logger per the recipe (None for backend "none")."""
+def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
+    """torchrl logger per the recipe (None for backend "none"). ``concurrent``: other runs of
+    this process log at the same time (each W&B run is then created beside the others)."""
     cfg = recipe.logger
     method = recipe.network.name
     name = cfg.name or f"{recipe.task}-{recipe.algo}-{method}-seed{recipe.seed}"
@@ -219,6 +220,7 @@ def make_logger(recipe: Recipe, run: RunDir):
         # stable across processes, so a resumed run continues the same W&B run
         id=_slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}"),
         resume="allow",
+        **({"reinit": "create_new"} if concurrent else {}),
     )
 
 

@@ -1,0 +1,162 @@
+"""Several seeds of one TD3 recipe trained in one process (``gcnt train RECIPE --seeds 0,1,2``).
+
+Each seed is an ordinary run: its own recipe copy (``seed`` set), env, collector, replay,
+schedule, global random state (:class:`gcnt.rl.stacked.SeedRNG`) and run directory (the default
+``runs/<task>/<algo>-<method>/seed<N>``, or ``<run_dir>/seed<N>`` when the recipe sets
+``run_dir``), with its own metrics rows, checkpoints and evaluations, written by the helpers of
+:mod:`gcnt.rl.loop`. The seeds advance in lockstep: each collects one batch, then the update phase
+runs every seed's updates together (:class:`gcnt.rl.stacked.StackedTD3`: networks stacked, one
+vmapped step per update).
+
+Only what keeps every seed's update count equal per batch is accepted: TD3 with
+``td3.schedule=mixed`` (the paper schedule updates a seed when all its robots have finished an
+episode, which differs between seeds), and networks without dropout. A checkpoint of a seed is an
+ordinary single-run checkpoint: ``gcnt train --resume <seed's run dir>`` continues that seed on
+its own.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+
+from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
+
+from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl.loop import (
+    Cadence,
+    Prepared,
+    TrainStats,
+    _check_losses,
+    check_policy,
+    finish,
+    make_collector,
+    prepare,
+)
+from gcnt.rl.run_dir import RunDir, make_logger
+from gcnt.rl.stacked import SeedRNG, StackedTD3
+
+log = logging.getLogger(__name__)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0,1,2"`` -> ``[0, 1, 2]``; a RecipeError naming the problem otherwise."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        seeds = [int(p) for p in parts]
+    except ValueError:
+        raise RecipeError(
+            f"--seeds {text!r}: expected comma-separated integers, e.g. --seeds 0,1,2"
+        ) from None
+    dup = sorted({s for s in seeds if seeds.count(s) > 1})
+    if dup:
+        raise RecipeError(f"--seeds {text!r}: seed {dup[0]} is given twice")
+    return seeds
+
+
+def seed_recipes(recipe: Recipe, seeds: list[int]) -> list[Recipe]:
+    """One copy of ``recipe`` per seed (``seed`` set; ``run_dir``, when set, becomes the parent
+    folder of ``seed<N>``), after checking that the recipe can be stacked."""
+    if not seeds:
+        raise RecipeError("--seeds: give at least one seed, e.g. --seeds 0,1,2")
+    if recipe.algo != "td3":
+        raise RecipeError(
+            f"--seeds trains TD3 recipes with stacked networks; this recipe has algo={recipe.algo}"
+        )
+    if recipe.td3.schedule != "mixed":
+        raise RecipeError(
+            f"--seeds needs td3.schedule=mixed (td3.schedule={recipe.td3.schedule} gives each "
+            "seed its own number of updates per batch)"
+        )
+    out = []
+    for seed in seeds:
+        r = copy.deepcopy(recipe)
+        r.seed = seed
+        if recipe.run_dir:
+            r.run_dir = str(Path(recipe.run_dir) / f"seed{seed}")
+        out.append(r)
+    return out
+
+
+def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
+    """Train the seeds' recipes (from :func:`seed_recipes`) together into fresh run
+    directories; returns them."""
+    rng = SeedRNG(len(recipes), recipes[0].device)
+    prepared: list[Prepared] = []
+    try:
+        # each seed is built as its own run would be (seeded globally, then its state kept)
+        for i, recipe in enumerate(recipes):
+            prepared.append(prepare(recipe))
+            rng.capture(i)
+        try:
+            stacked = StackedTD3([p.algo for p in prepared], rng)
+        except ValueError as e:
+            raise RecipeError(f"--seeds: {e}") from None
+        runs = [RunDir.for_recipe(r) for r in recipes]
+        paths = [run.path.resolve() for run in runs]
+        if len(set(paths)) < len(paths):
+            raise RecipeError("--seeds: two seeds would share one run directory")
+        for run, recipe in zip(runs, recipes, strict=True):
+            run.create(recipe)
+    except BaseException:
+        for p in prepared:
+            p.env.close()
+        raise
+    _lockstep(recipes, runs, prepared, stacked, rng)
+    return runs
+
+
+def _lockstep(
+    recipes: list[Recipe],
+    runs: list[RunDir],
+    prepared: list[Prepared],
+    stacked: StackedTD3,
+    rng: SeedRNG,
+) -> None:
+    n = len(recipes)
+    algos = [p.algo for p in prepared]
+    env_steps = [0] * n
+    total = recipes[0].collector.total_frames
+    cadences = [Cadence(r, 0) for r in recipes]
+    loggers = [make_logger(r, run, concurrent=True) for r, run in zip(recipes, runs, strict=True)]
+    stats = [TrainStats([robot.name for robot in p.robots], 0, p.algo.updates) for p in prepared]
+    collectors = []
+    try:
+        for i, (recipe, p) in enumerate(zip(recipes, prepared, strict=True)):
+            with rng.active(i):
+                settings = p.algo.collect_settings(0)
+                collectors.append(make_collector(recipe, p.env, settings))
+        batches = [iter(c) for c in collectors]
+        progress = recipes[0].logger.progress
+        bar = tqdm(total=total * n, unit="step", disable=not progress)
+        with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
+            try:
+                while min(env_steps) < total:
+                    datas = []
+                    for i in range(n):
+                        with rng.active(i):
+                            datas.append(next(batches[i]))
+                    for i, data in enumerate(datas):
+                        env_steps[i] += data.numel()
+                        stats[i].add_episodes(data)
+                        bar.update(data.numel())
+                    rows = stacked.process(datas, env_steps)
+                    for i in range(n):
+                        for losses in rows[i]:
+                            stats[i].add_losses(losses)
+                            _check_losses(runs[i], losses, env_steps[i], algos[i].updates)
+                        check_policy(runs[i], algos[i], env_steps[i])
+                        with rng.active(i):  # its checkpoint keeps its own random state
+                            cadences[i].after_batch(
+                                recipes[i], runs[i], algos[i], loggers[i], stats[i], env_steps[i]
+                            )
+            finally:
+                bar.close()
+    finally:
+        for c in collectors:
+            c.shutdown()
+    for i in range(n):
+        with rng.active(i):
+            finish(recipes[i], runs[i], algos[i], loggers[i], env_steps[i])
