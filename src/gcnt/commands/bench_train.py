@@ -35,6 +35,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=3,
         help="PPO: iterations to run end to end (the first is warm-up)",
     )
+    p.add_argument(
+        "--stacked-seeds",
+        type=int,
+        metavar="S",
+        help="TD3 instead: bare update time of 1..S seeds stacked (gcnt train --seeds) against "
+        "one seed's own update, mixed schedule",
+    )
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
@@ -134,7 +141,91 @@ def run(args: argparse.Namespace) -> int:
         raise RecipeError(
             f"bench-train measures TD3 and PPO recipes; {args.recipe} has algo {recipe.algo}"
         )
+    if args.stacked_seeds is not None:
+        return run_stacked(args, recipe)
     return run_td3(args, recipe)
+
+
+def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
+    """ms per update (critic step, plus the actor step every ``policy_delay``) on one fixed
+    mixed mini-batch: one seed's own :class:`TD3Learner` step, and S = 1..``max_seeds`` seeds
+    stacked (:class:`StackedTD3Learner`, the same batch and noise for every seed)."""
+    import torch
+
+    from gcnt.nn.keys import ACTION
+    from gcnt.rl import replay as rb
+    from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.stacked import StackedTD3Learner
+    from gcnt.rl.td3 import TD3Learner
+    from gcnt.rl.td3_loss import target_noise
+
+    c = recipe.td3
+    robots = train_robots(recipe)
+    env = make_env(recipe, robots)
+    data = env.rollout(-(-c.batch_size // env.batch_size[0]) + 1, break_when_any_done=False)
+    replay = rb.RobotReplay(len(robots), capacity=data.numel(), batch_size=c.batch_size)
+    replay.extend(data)
+    batch = replay.sample_mixed().to(recipe.device)
+    learners = []
+    for seed in range(max_seeds):
+        torch.manual_seed(seed)
+        learners.append(TD3Learner(recipe, env))
+    env.close()
+    single = TD3Learner(recipe, env)
+
+    def time_steps(step, arg) -> float:
+        for _ in range(2 * c.policy_delay):  # warm-up
+            step(arg)
+        t0 = time.perf_counter()
+        out = [step(arg) for _ in range(n_updates)]
+        torch.stack([row["loss_critic"] for row in out]).sum().item()  # wait for the device
+        return (time.perf_counter() - t0) / n_updates * 1e3
+
+    out = {"single_ms": time_steps(single.step, batch), "stacked_ms": {}}
+    noise = target_noise(batch.get(ACTION), c.policy_noise, c.noise_clip)
+    for s in range(1, max_seeds + 1):
+        stacked = StackedTD3Learner(learners[:s])
+        out["stacked_ms"][s] = time_steps(
+            stacked.step, stacked.stack_batches([batch] * s, [noise] * s)
+        )
+    return out
+
+
+def run_stacked(args: argparse.Namespace, recipe) -> int:
+    """``--stacked-seeds S``: the stacked update against one seed's, in one run."""
+    import torch
+
+    from gcnt.recipes import RecipeError
+
+    if args.stacked_seeds < 1:
+        raise RecipeError(f"--stacked-seeds must be >= 1, got {args.stacked_seeds}")
+    recipe.td3.schedule = "mixed"
+    ms = stacked_update_ms(recipe, args.stacked_seeds, args.updates)
+    out = {
+        "recipe": args.recipe,
+        "algo": "td3",
+        "network": recipe.network.name,
+        "device": recipe.device,
+        "batch_size": recipe.td3.batch_size,
+        "threads": torch.get_num_threads(),
+        "single_seed_update_ms": ms["single_ms"],
+        "stacked_update_ms": ms["stacked_ms"],
+        # time of S seeds' updates made together, in units of one seed's own update
+        "ratio": {s: t / ms["single_ms"] for s, t in ms["stacked_ms"].items()},
+    }
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(
+        f"one seed's own TD3 update: {ms['single_ms']:.2f} ms ({recipe.network.name}, "
+        f"mixed batch of {recipe.td3.batch_size} per robot, {out['threads']} threads)"
+    )
+    for s, t in ms["stacked_ms"].items():
+        print(
+            f"{s} seed(s) stacked: {t:8.2f} ms per update of all of them = "
+            f"{out['ratio'][s]:.2f}x one seed's update ({out['ratio'][s] / s:.2f}x per seed)"
+        )
+    return 0
 
 
 def run_td3(args: argparse.Namespace, recipe) -> int:
