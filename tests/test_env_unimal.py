@@ -20,6 +20,7 @@ from torchrl.envs.utils import check_env_specs
 from gcnt.envs.benchmark import get_benchmark
 from gcnt.envs.unimal import UNIMAL_BENCHMARK, UnimalEnv
 from gcnt.envs.unimal import terrain as T
+from gcnt.envs.unimal import worlds as W
 from gcnt.morphology.benchmarks import resolve_robots
 
 WORLDS = ("ft", "incline", "mt", "obstacles")
@@ -408,6 +409,29 @@ def test_obstacle_geoms_follow_the_draw(robots):
             assert model.geom_contype[g] == 1
         else:
             assert model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
+    env.close()
+
+
+def test_obstacle_table_after_many_redraws_equals_a_fresh_one(robots):
+    """A redraw restores only the cells the previous boxes covered: after several episodes the
+    lookup table is the one a new field would build for the same boxes."""
+    env = UnimalEnv(robots[:1], world="obstacles", seed=3, num_threads=1)
+    field = env.task_rules(0).terrain
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        field.redraw(rng)
+    boxes = field.boxes
+    fresh = T.ObstacleField(env.sim(0)[0])
+    fresh.place(boxes)
+    np.testing.assert_array_equal(field.grid, fresh.grid)
+    # and the table has the walls, the floor and one box top under every box centre
+    x0, y0 = field.origin
+    rows = np.floor((boxes[:, 1] - y0) / W.CELL + 0.5).astype(int)
+    cols = np.floor((boxes[:, 0] - x0) / W.CELL + 0.5).astype(int)
+    assert (field.grid[rows, cols] == field.top).all()
+    assert (field.grid == field.top).sum() < field.grid.size // 4
+    field.place(np.zeros((0, 4)))
+    np.testing.assert_array_equal(field.grid, field._floor)
     env.close()
 
 

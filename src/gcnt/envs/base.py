@@ -179,10 +179,12 @@ class Featurizer(ABC):
     @abstractmethod
     def compute(self, rows: np.ndarray | None = None) -> np.ndarray:
         """Observations float32 [n, K, F] of the gathered sub-envs (``rows``: a subset, in order).
-        Padded limbs must come out as zeros."""
+        Padded limbs must come out as zeros. The env copies the result at once, so a featuriser
+        may return the same buffer every call."""
 
     def compute_root(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """The :attr:`root_outputs` of the gathered sub-envs, float32 [n, D] each."""
+        """The :attr:`root_outputs` of the gathered sub-envs, float32 [n, D] each (copied by the
+        env at once, like :meth:`compute`'s result)."""
         return {}
 
 

@@ -185,6 +185,10 @@ class UnimalFeaturizer(Featurizer):
         if terrain_of is not None:
             self._terrains = [terrain_of(mdl) for mdl in models]
             self._origin = self._terrains[0].origin
+            self._hwork = H.Workspace(n)
+            self._hmap = np.empty((n, H.HFIELD_DIM), np.float32)
+        self._out64 = np.empty((n, k, OBS_DIM))
+        self._out32 = np.empty((n, k, OBS_DIM), np.float32)
         #: seconds spent computing height maps (for ``gcnt bench-env``)
         self.hfield_seconds = 0.0
 
@@ -213,10 +217,14 @@ class UnimalFeaturizer(Featurizer):
             dst[...] = src
 
     def compute(self, rows: np.ndarray | None = None) -> np.ndarray:
-        return self.features(rows).astype(np.float32)
+        if rows is not None:
+            return self.features(rows).astype(np.float32)
+        # the whole batch: into kept buffers (see hfield.Workspace on fresh big arrays)
+        np.copyto(self._out32, self.features(out=self._out64))
+        return self._out32
 
-    def features(self, rows: np.ndarray | None = None) -> np.ndarray:
-        """The observations of :meth:`compute` in float64 [n, K, 52]."""
+    def features(self, rows: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
+        """The observations of :meth:`compute` in float64 [n, K, 52] (into ``out`` if given)."""
         if rows is None:
             xpos, xquat, cvel, com, qpos, qvel = (
                 self.xpos, self.xquat, self.cvel, self.com, self.qpos, self.qvel
@@ -234,7 +242,10 @@ class UnimalFeaturizer(Featurizer):
                 self.has[rows], self.lo[rows], self.span[rows],
             )  # fmt: skip
         n, k = xpos.shape[:2]
-        out = tpl.copy()
+        if out is None:
+            out = tpl.copy()
+        else:
+            np.copyto(out, tpl)
         # 0:3 position, x relative to the torso
         out[..., 0:3] = xpos
         x = out[..., 0]
@@ -273,7 +284,12 @@ class UnimalFeaturizer(Featurizer):
             xy, quat = self.xpos[rows, 0, :2], self.xquat[rows, 0]
             terrains = [self._terrains[i] for i in rows]
         hmap = H.height_map(
-            xy, H.heading_from_quat(quat), [tr.grid for tr in terrains], self._origin
+            xy,
+            H.heading_from_quat(quat),
+            [tr.grid for tr in terrains],
+            self._origin,
+            work=self._hwork,
+            out=self._hmap if rows is None else None,
         )
         self.hfield_seconds += time.perf_counter() - t
         return {"hfield": hmap}

