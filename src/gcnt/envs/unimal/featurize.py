@@ -185,6 +185,14 @@ class UnimalFeaturizer(Featurizer):
         if terrain_of is not None:
             self._terrains = [terrain_of(mdl) for mdl in models]
             self._origin = self._terrains[0].origin
+            # one array of all lookup tables, each terrain's ``grid`` a view into it (its redraws
+            # write in place), so the height map reads every sub-env with one np.take
+            shape = {tr.grid.shape for tr in self._terrains}
+            if len(shape) != 1:
+                raise ValueError(f"the sub-envs' terrains differ in size: {sorted(shape)}")
+            self._tables = np.stack([tr.grid for tr in self._terrains])
+            for j, tr in enumerate(self._terrains):
+                tr.grid = self._tables[j]
             self._hwork = H.Workspace(n)
             self._hmap = np.empty((n, H.HFIELD_DIM), np.float32)
         self._out64 = np.empty((n, k, OBS_DIM))
@@ -279,15 +287,15 @@ class UnimalFeaturizer(Featurizer):
             return {}
         t = time.perf_counter()
         if rows is None:
-            xy, quat, terrains = self.xpos[:, 0, :2], self.xquat[:, 0], self._terrains
+            xy, quat = self.xpos[:, 0, :2], self.xquat[:, 0]
         else:
             xy, quat = self.xpos[rows, 0, :2], self.xquat[rows, 0]
-            terrains = [self._terrains[i] for i in rows]
         hmap = H.height_map(
             xy,
             H.heading_from_quat(quat),
-            [tr.grid for tr in terrains],
+            self._tables,
             self._origin,
+            rows=rows,
             work=self._hwork,
             out=self._hmap if rows is None else None,
         )

@@ -100,27 +100,28 @@ class Workspace:
 def height_map(
     xy: np.ndarray,
     heading: np.ndarray,
-    grids: list[np.ndarray],
+    tables: np.ndarray,
     origin: tuple[float, float],
+    rows: np.ndarray | None = None,
     work: Workspace | None = None,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Height maps float32 [n, 1410] of n sub-envs (into ``out`` when given).
 
-    ``grids``: each sub-env's lookup table float32 [nrow, ncol] in metres (rows along y from
-    ``origin[1]``, columns along x from ``origin[0]``, 0.1 m apart, all of one shape), whose
-    outermost rows and columns hold ``OUTSIDE``: a sample beyond the table reads its border.
-    ``work``: a :class:`Workspace` for at least n sub-envs, kept between calls (a new one if
-    None).
+    ``tables``: every sub-env's lookup table, float32 [N, nrow, ncol] in metres (rows along y
+    from ``origin[1]``, columns along x from ``origin[0]``, 0.1 m apart), whose outermost rows
+    and columns hold ``OUTSIDE``: a sample beyond a table reads its border. ``rows``: which
+    tables ``xy``/``heading`` belong to (None: all N, in order). ``work``: a :class:`Workspace`
+    for at least n sub-envs, kept between calls (a new one if None).
     """
-    n = len(grids)
+    n = len(xy)
     if out is None:
         out = np.empty((n, HFIELD_DIM), np.float32)
     if n == 0:
         return out
     if work is None or work.n < n:
         work = Workspace(n)
-    nrow, ncol = grids[0].shape
+    nrow, ncol = tables.shape[1:]
     # nearest vertex: floor(cells + 0.5), once clipped into the table (truncation = floor there)
     cells = _cells(xy, heading, origin, 0.5, out=work.cells[:n])
     np.clip(cells[:, 0], 0, ncol - 1, out=cells[:, 0])
@@ -130,7 +131,10 @@ def height_map(
     np.copyto(flat, cells[:, 1], casting="unsafe")
     flat *= ncol
     flat += col
-    for j, g in enumerate(grids):
-        np.take(g.reshape(-1), flat[j], out=out[j], mode="clip")  # clip: NaN positions
+    # one lookup in all tables at once: table j starts at j * nrow * ncol
+    which = np.arange(n) if rows is None else np.asarray(rows)
+    flat += (which * (nrow * ncol))[:, None]
+    # clip: a NaN position (a blown-up sub-env) reads a border cell, OUTSIDE like every border
+    np.take(tables.reshape(-1), flat, out=out, mode="clip")
     out -= out[:, CENTRE : CENTRE + 1]
     return out
