@@ -317,19 +317,29 @@ def test_spinning_openmp_is_reported_once(monkeypatch, caplog):
         for _ in range(2):
             toy_env(num_threads=2).close()
         toy_env(num_threads=1).close()
-    lines = [r.getMessage() for r in caplog.records if "OMP_WAIT_POLICY" in r.getMessage()]
+    lines = [r.getMessage() for r in caplog.records if "GOMP_SPINCOUNT" in r.getMessage()]
     assert len(lines) == 1 and "import gcnt first" in lines[0]
 
 
-def test_gcnt_sets_a_passive_openmp_wait_policy_before_torch():
+def test_gcnt_shortens_the_openmp_spin_before_torch():
     import os
     import subprocess
     import sys
 
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    code = "import gcnt, os, torch; print(os.environ['OMP_WAIT_POLICY'], gcnt.OPENMP_SPINS)"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
-    assert out.stdout.split() == ["PASSIVE", "False"], out.stderr
-    code = "import torch, gcnt; print(gcnt.OPENMP_SPINS)"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
-    assert out.stdout.split() == ["True"], out.stderr
+    def run(code, **extra):
+        env = {
+            k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")
+        }
+        env.update(extra)
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+        return out.stdout.split(), out.stderr
+
+    show = "print(os.environ.get('GOMP_SPINCOUNT'), gcnt.OPENMP_SPINS)"
+    got, err = run(f"import gcnt, os, torch; {show}")
+    assert got == ["10000", "False"], err
+    got, err = run(f"import torch, gcnt, os; {show}")  # too late for torch: reported
+    assert got == ["10000", "True"], err
+    got, err = run(f"import gcnt, os; {show}", OMP_WAIT_POLICY="PASSIVE")  # the user's wins
+    assert got == ["None", "False"], err
+    got, err = run(f"import gcnt, os; {show}", GOMP_SPINCOUNT="5")
+    assert got == ["5", "False"], err

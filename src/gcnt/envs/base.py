@@ -303,9 +303,9 @@ def _warn_if_openmp_spins() -> None:
         return
     _openmp_warned = True
     log.warning(
-        "torch was imported before gcnt without OMP_WAIT_POLICY: torch's OpenMP threads spin "
-        "between ops on the cores the physics threads use (env steps can be several times "
-        "slower); import gcnt first or set OMP_WAIT_POLICY=PASSIVE before starting Python"
+        "torch was imported before gcnt: torch's OpenMP threads spin long after each op on the "
+        "cores the physics threads use (env steps can be several times slower); import gcnt "
+        "first, or set GOMP_SPINCOUNT=10000 before starting Python"
     )
 
 
