@@ -579,9 +579,15 @@ def test_partial_reset(robots):
 
 @pytest.mark.parametrize("world", ["incline", "obstacles"])
 def test_determinism(robots, world):
+    """Same seed, same worlds and outputs, on one thread or two (with 18 sub-envs, two threads
+    also split the batch's height maps between them)."""
+    from gcnt.envs.unimal.featurize import _PARALLEL_HEIGHT_MAPS
+
+    subenvs = robots * 6
+    assert len(subenvs) >= _PARALLEL_HEIGHT_MAPS
     runs = []
     for threads in (1, 2):
-        env = UnimalEnv(robots, world=world, seed=21, num_threads=threads)
+        env = UnimalEnv(subenvs, world=world, seed=21, num_threads=threads)
         gen = torch.Generator().manual_seed(0)
         td = env.reset()
         rewards = []

@@ -155,6 +155,11 @@ class Featurizer(ABC):
     context_dim: int = 0
     #: MuJoCo functions ``f(model, data)`` the env runs on a sub-env before gathering
     kinematics: tuple[Callable[[mujoco.MjModel, mujoco.MjData], None], ...] = DEFAULT_KINEMATICS
+    #: the env's helper physics threads (set by the env; None with one thread). They are idle
+    #: while :meth:`compute` and :meth:`compute_root` run, so a featuriser may hand them part of
+    #: a batch (numpy releases the GIL inside large array operations). A task they have not
+    #: started yet (``Future.cancel()`` succeeds) is the caller's to run.
+    pool: ThreadPoolExecutor | None = None
 
     @property
     def root_outputs(self) -> Mapping[str, int]:
@@ -562,6 +567,7 @@ class BatchedMujocoEnv(EnvBase):
             if self.num_threads > 1
             else None
         )
+        self._featurizer.pool = self._pool
 
     # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
@@ -942,6 +948,7 @@ class BatchedMujocoEnv(EnvBase):
         self._featurizer = self._featurizer_factory(
             self.robots, [s.model for s in sims], self.max_limbs
         )
+        self._featurizer.pool = self._pool
         self._layout()
         for s in sims:  # fill the new featuriser's buffers (kinematics are idempotent)
             self._refresh(s)

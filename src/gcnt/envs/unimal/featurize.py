@@ -48,6 +48,8 @@ from gcnt.morphology import Robot
 OBS_DIM = 52
 CONTEXT_DIM = 35
 ACTION_SLOTS = 2
+#: batches of at least this many height maps are split over two threads when the env has them
+_PARALLEL_HEIGHT_MAPS = 16
 SLOT0, SLOT_WIDTH = 30, 11
 #: columns of the observation that make up the context
 CONTEXT_COLUMNS = np.r_[13:30, 32:41, 43:52]
@@ -193,7 +195,8 @@ class UnimalFeaturizer(Featurizer):
             self._tables = np.stack([tr.grid for tr in self._terrains])
             for j, tr in enumerate(self._terrains):
                 tr.grid = self._tables[j]
-            self._hwork = H.Workspace(n)
+            # one workspace per half of the batch (see compute_root)
+            self._hwork = (H.Workspace(n - n // 2), H.Workspace(n // 2))
             self._hmap = np.empty((n, H.HFIELD_DIM), np.float32)
         self._out64 = np.empty((n, k, OBS_DIM))
         self._out32 = np.empty((n, k, OBS_DIM), np.float32)
@@ -288,16 +291,28 @@ class UnimalFeaturizer(Featurizer):
         t = time.perf_counter()
         if rows is None:
             xy, quat = self.xpos[:, 0, :2], self.xquat[:, 0]
+            rows, out = np.arange(len(xy)), self._hmap
         else:
             xy, quat = self.xpos[rows, 0, :2], self.xquat[rows, 0]
-        hmap = H.height_map(
-            xy,
-            H.heading_from_quat(quat),
-            self._tables,
-            self._origin,
-            rows=rows,
-            work=self._hwork,
-            out=self._hmap if rows is None else None,
-        )
+            out = np.empty((len(rows), H.HFIELD_DIM), np.float32)
+        heading = H.heading_from_quat(quat)
+
+        def part(lo: int, hi: int, work: H.Workspace) -> None:
+            H.height_map(
+                xy[lo:hi], heading[lo:hi], self._tables, self._origin, rows[lo:hi], work, out[lo:hi]
+            )
+
+        n, half = len(rows), len(rows) // 2
+        if self.pool is not None and n >= _PARALLEL_HEIGHT_MAPS:
+            # the first half on a helper thread, the second here: measured on 2 cores, the
+            # 100-robot MT and Obstacles envs step 6-9% faster than with one thread
+            first = self.pool.submit(part, 0, n - half, self._hwork[0])
+            part(n - half, n, self._hwork[1])
+            if first.cancel():  # the helper had not started it (a busy machine)
+                part(0, n - half, self._hwork[0])
+            else:
+                first.result()
+        else:
+            part(0, n, self._hwork[0] if n <= self._hwork[0].n else None)
         self.hfield_seconds += time.perf_counter() - t
-        return {"hfield": hmap}
+        return {"hfield": out}
