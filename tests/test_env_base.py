@@ -343,3 +343,47 @@ def test_gcnt_shortens_the_openmp_spin_before_torch():
     assert got == ["None", "False"], err
     got, err = run(f"import gcnt, os; {show}", GOMP_SPINCOUNT="5")
     assert got == ["5", "False"], err
+
+
+@pytest.mark.parametrize("benchmark", ["smpenv", "unimal"])
+def test_partial_reset_merge_equals_torchrl_default(benchmark, monkeypatch):
+    """The env merges a partial reset with one update; TorchRL's masked merge gives the same
+    rollout (every key, every step, resets included)."""
+    from torchrl.envs import EnvBase
+
+    from gcnt.morphology.benchmarks import resolve_robots
+
+    bench = get_benchmark(benchmark)
+    names = ["hopper_3", "walker_7_main", "cheetah_2_front"]
+    if benchmark == "unimal":
+        names = ["unimal_0000", "unimal_0001", "unimal_0002"]
+    robots = resolve_robots(names)
+    world = {"world": "obstacles"} if benchmark == "unimal" else {}
+
+    def rollout(default_merge: bool):
+        with monkeypatch.context() as m:
+            if default_merge:
+                m.setattr(BatchedMujocoEnv, "_reset_proc_data", EnvBase._reset_proc_data)
+            env = bench.make_env(robots, seed=5, num_threads=1, max_episode_steps=7, **world)
+            gen = torch.Generator().manual_seed(1)
+            td, outs = env.reset(), []
+            for step in range(20):
+                shape = env.action_spec["limbs", "action"].shape
+                td.set(("limbs", "action"), torch.rand(shape, generator=gen) * 2 - 1)
+                out, td = env.step_and_maybe_reset(td)
+                if step in (3, 10):  # an explicit partial reset
+                    td["_reset"] = torch.tensor([[True], [False], [step == 10]])
+                    td = env.reset(td)
+                outs.append((out.clone(), td.clone()))
+            env.close()
+        return outs
+
+    mine, torchrl_default = rollout(False), rollout(True)
+    assert any(o["next", "done"].any() for o, _ in mine)  # step_and_maybe_reset reset some
+    for (a, ta), (b, tb) in zip(mine, torchrl_default, strict=True):
+        assert set(a.keys(True, True)) == set(b.keys(True, True))
+        assert set(ta.keys(True, True)) == set(tb.keys(True, True))
+        for key in a.keys(True, True):
+            assert torch.equal(a[key], b[key]), key
+        for key in ta.keys(True, True):
+            assert torch.equal(ta[key], tb[key]), key

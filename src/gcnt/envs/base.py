@@ -798,6 +798,32 @@ class BatchedMujocoEnv(EnvBase):
         self._featurize(rows)
         return self._output(None, self._last_terminated.copy(), self._last_truncated.copy())
 
+    def _reset_proc_data(self, tensordict, tensordict_reset):
+        """Merge a partial reset into ``tensordict`` with one ``update``.
+
+        :meth:`_reset` returns every sub-env's current observation and flags, not only those of
+        the reset ones, so its rows that were not reset equal the input's: TorchRL's default
+        merge (a masked ``where`` per entry, graph and height map included) would rebuild the
+        same values. Measured on UNIMAL FT with random actions (a few resets per batched step),
+        that merge took about 0.7 ms of a 7 ms step.
+        """
+        self._complete_done(self.full_done_spec, tensordict_reset)
+        self._reset_check_done(tensordict, tensordict_reset)
+        if tensordict is None:
+            return tensordict_reset
+        reset = tensordict.pop("_reset", None)  # this env's only reset key
+        if reset is not None and not reset.all():
+            # as TorchRL does: an entry the reset does not produce (a policy's action, say) is
+            # zeroed in the reset rows, in a new tensor (the step's output may share the old one)
+            keep = ~reset.reshape(-1)
+            produced = set(tensordict_reset.keys(True, True))
+            for key in list(tensordict.keys(True, True)):
+                if key not in produced:
+                    v = tensordict.get(key)
+                    mask = keep.reshape(-1, *([1] * (v.dim() - 1)))
+                    tensordict.set(key, torch.where(mask, v, torch.zeros((), dtype=v.dtype)))
+        return tensordict.update(tensordict_reset)
+
     # ------------------------------------------------------------------ step
     def _actions(self, tensordict: TensorDictBase) -> np.ndarray:
         """The action as float64 [N, K, A], clipped to [-1, 1], zero on slots without a motor."""
