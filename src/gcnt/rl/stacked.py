@@ -35,8 +35,8 @@ from torch import nn
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from gcnt.nn.keys import ACTION, MORPH_ID
-from gcnt.rl.accelerate import accelerate, begin_step, optimizer_kwargs
-from gcnt.rl.td3 import TD3, TD3Learner
+from gcnt.rl.accelerate import accelerate, optimizer_kwargs
+from gcnt.rl.td3 import TD3, TD3Learner, delayed_update
 from gcnt.rl.td3_loss import target_noise
 from gcnt.rl.tensor_chain import _has_dropout
 
@@ -208,13 +208,7 @@ class StackedTD3Learner:
         """One critic update of every seed, plus an actor and target update every
         ``policy_delay`` calls; losses [S] stay on the device. Seeds' modules are written by
         :meth:`push`."""
-        begin_step(self.accel)
-        out = {"loss_critic": self.critic_step(batch)["loss_critic"]}
-        self.updates += 1
-        if self.updates % self.config.policy_delay == 0:
-            begin_step(self.accel)
-            out["loss_actor"] = self.actor_step(batch)["loss_actor"]
-        return out
+        return delayed_update(self, batch)
 
     # ------------------------------------------------------------------ seeds <-> stack
     def _optimisers(self) -> list[tuple[torch.optim.Optimizer, list, str, str]]:

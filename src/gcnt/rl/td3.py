@@ -197,13 +197,7 @@ class TD3Learner:
         """One critic update, plus an actor and target update every ``policy_delay`` calls;
         the losses stay tensors on the device (no synchronisation)."""
         batch = batch.to(self.device) if batch.device != self.device else batch
-        begin_step(self.accel)
-        out = {"loss_critic": self.critic_step(batch)["loss_critic"]}
-        self.updates += 1
-        if self.updates % self.config.policy_delay == 0:
-            begin_step(self.accel)
-            out["loss_actor"] = self.actor_step(batch)["loss_actor"]
-        return out
+        return delayed_update(self, batch)
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """:meth:`step`, with the losses as floats."""
@@ -242,6 +236,19 @@ class TD3Learner:
             for group in opt.param_groups:
                 group["lr"] = self.config.lr
         self.updates = state["updates"]
+
+
+def delayed_update(learner, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """TD3's delayed policy update on a learner with ``critic_step``, ``actor_step``,
+    ``updates``, ``config`` and ``accel``: a critic step, then an actor + target step on every
+    ``policy_delay``-th call (two graphed steps, chosen here in Python)."""
+    begin_step(learner.accel)
+    out = {"loss_critic": learner.critic_step(batch)["loss_critic"]}
+    learner.updates += 1
+    if learner.updates % learner.config.policy_delay == 0:
+        begin_step(learner.accel)
+        out["loss_actor"] = learner.actor_step(batch)["loss_actor"]
+    return out
 
 
 class UpdateSchedule:
