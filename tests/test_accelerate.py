@@ -1,4 +1,4 @@
-"""torch.compile of the TD3 update steps on a CPU (the ``compile:`` recipe section).
+"""torch.compile of the TD3 update steps and of PPO's loss forward on a CPU (the ``compile:`` recipe section).
 
 Compiling takes minutes on a small shared CPU, so this runs only when asked:
 ``GCNT_TEST_COMPILE=1 pytest tests/test_accelerate.py``. The switches themselves (accepted,
@@ -53,3 +53,38 @@ def test_compiled_td3_steps_match_eager_on_cpu(monkeypatch):
         assert a.keys() == b.keys()
         for k in a:
             assert abs(a[k] - b[k]) <= 1e-4 * (1 + abs(a[k])), (k, a[k], b[k])
+
+
+def test_compiled_ppo_loss_matches_eager_on_cpu(tmp_path):
+    """compile.compile: PPO's compiled loss forward gives the eager losses and gradients on the
+    same mini-batch."""
+    from test_ppo import rollout, tiny_recipe
+
+    from gcnt.rl.loop import prepare
+    from gcnt.rl.ppo import _BATCH_KEYS
+
+    recipe = tiny_recipe(tmp_path)
+    recipe.compile.compile = True
+    prep = prepare(recipe)
+    learner = prep.algo.learner
+    assert learner.loss_forward is not learner.loss
+    batch = learner.advantages(learner.normalized(rollout(prep)))
+    keys = [k for k in _BATCH_KEYS if k in batch.keys(True)]
+    mb = batch.select(*keys).reshape(-1)[:40]
+    prep.env.close()
+    learner.actor.train()
+    learner.critic.train()
+    results = []
+    for forward in (learner.loss, learner.loss_forward):
+        out = forward(mb.clone())
+        total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+        learner.opt.zero_grad(set_to_none=True)
+        total.backward()
+        grads = [p.grad.clone() for p in learner.params if p.grad is not None]
+        results.append((total.detach(), float(out["kl_approx"]), grads))
+    (ta, ka, ga), (tb, kb, gb) = results
+    assert torch.allclose(ta, tb, rtol=1e-4, atol=1e-5), (ta, tb)
+    assert abs(ka - kb) <= 1e-4
+    assert len(ga) == len(gb) > 0
+    for a, b in zip(ga, gb, strict=True):
+        assert torch.allclose(a, b, rtol=1e-3, atol=1e-5)

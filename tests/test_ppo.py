@@ -134,14 +134,14 @@ def test_kl_stop_is_checked_before_each_step_and_skips_the_rest_of_the_iteration
     data = rollout(prep)
     # 2 epochs x 2 mini-batches; the 3rd mini-batch (epoch 1, step 0) reports a KL over 0.05
     kls = iter([0.0, 0.01, 0.2, 0.0])
-    real = algo.learner.loss
+    real = algo.learner.loss_forward
 
     def scripted(batch):
         out = real(batch)
         out.set("kl_approx", torch.tensor(next(kls)))
         return out
 
-    algo.learner.loss = scripted
+    algo.learner.loss_forward = scripted
     before = {k: v.clone() for k, v in algo.learner.actor.state_dict().items()}
     losses = list(algo.learner.learn(data))
     assert len(losses) == 2 and algo.learner.updates == 2  # no step on the 3rd, no 4th
@@ -152,6 +152,22 @@ def test_kl_stop_is_checked_before_each_step_and_skips_the_rest_of_the_iteration
         not torch.equal(before[k], after[k]) for k in before if before[k].is_floating_point()
     )
     prep.env.close()
+
+
+def test_compile_switches_for_ppo(tmp_path):
+    """compile.compile compiles PPO's loss forward; CUDA graphs are refused with the reason (the
+    KL early stop decides between forward and optimiser step)."""
+    d = tiny_recipe(tmp_path).to_dict()
+    recipe = recipe_from_dict({**d, "compile": {"compile": True}})
+    prep = prepare(recipe)
+    learner = prep.algo.learner
+    assert learner.loss_forward is not learner.loss  # a torch.compile wrapper around it
+    prep.env.close()
+    eager = prepare(tiny_recipe(tmp_path / "eager"))
+    assert eager.algo.learner.loss_forward is eager.algo.learner.loss
+    eager.env.close()
+    with pytest.raises(ValueError, match=r"compile.cudagraphs=true is for TD3.*ppo.kl_stop"):
+        recipe_from_dict({**d, "compile": {"cudagraphs": True}})
 
 
 def test_lr_schedule_warms_up_then_follows_the_cosine():

@@ -101,15 +101,17 @@ class CompileConfig:
     compile small networks and then ran slower than eager; the rest need CUDA."""
 
     #: torch.compile the learner's update steps (TD3: the critic step and the actor + target
-    #: step, separately)
+    #: step, separately; PPO: the loss forward, its backward through AOTAutograd)
     compile: bool = False
     #: torch.compile mode: default | reduce-overhead | max-autotune (unset: default)
     mode: str | None = None
-    #: capture each update step in a CUDA graph (tensordict.nn.CudaGraphModule); CUDA only
+    #: capture each update step in a CUDA graph (tensordict.nn.CudaGraphModule); CUDA and TD3
+    #: only (PPO's KL early stop decides between forward and optimiser step)
     cudagraphs: bool = False
     #: bfloat16 autocast in the update steps; CUDA only
     amp: bool = False
-    #: keep the replay storage on the learner's device instead of CPU memory; CUDA only
+    #: keep the replay storage on the learner's device instead of CPU memory; CUDA only (PPO's
+    #: iteration buffer, GAE and update are always on the recipe's device)
     replay_on_device: bool = False
     #: torch.compile the collector's policy
     policy_compile: bool = False

@@ -44,6 +44,7 @@ from torchrl.objectives.value import GAE
 from gcnt.morphology import Robot
 from gcnt.nn.keys import ACTION, HFIELD, LOG_PROB, MASK, MORPH_ID, OBS, VALUE
 from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl.accelerate import autocast, compile_step
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.factories import (
     base_env,
@@ -148,6 +149,11 @@ class PPOLearner:
             else None
         )
         self.kl_stop = o.kl_threshold(recipe.network.name)
+        # compile.compile: the loss forward is compiled (its backward through AOTAutograd); the
+        # KL early stop reads its output before the optimiser step, so the step stays eager and
+        # compile.cudagraphs is refused for PPO (PPOConfig.check_recipe)
+        self.accel = recipe.compile
+        self.loss_forward = compile_step(self.loss, self.accel)
         self.iteration = 0
         self.updates = 0
 
@@ -215,7 +221,8 @@ class PPOLearner:
         try:
             for epoch in range(o.epochs):
                 for step in range(n // mb):
-                    out = self.loss(rb.sample())
+                    with autocast(self.accel, device):
+                        out = self.loss_forward(rb.sample())
                     kl = float(out["kl_approx"])
                     self.last_kl = kl
                     if self.kl_stop > 0 and kl > self.kl_stop:

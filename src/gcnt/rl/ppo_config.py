@@ -81,6 +81,15 @@ class PPOConfig:
             return float(self.kl_stop.get(network, self.kl_stop["default"]))
         return float(self.kl_stop)
 
+    def check_recipe(self, recipe) -> None:
+        """The ``compile:`` switches PPO cannot honour: a ValueError naming the switch."""
+        if recipe.compile.cudagraphs:
+            raise ValueError(
+                "compile.cudagraphs=true is for TD3: PPO decides between a mini-batch's forward "
+                "pass and its optimiser step whether to stop early on KL (ppo.kl_stop), which a "
+                "captured graph cannot; use compile.compile=true (the loss forward compiled)"
+            )
+
     def check(self) -> None:
         """Values that cannot train: a ValueError naming the key."""
         check_range(
