@@ -27,11 +27,16 @@ pytestmark = [
 ]
 
 
-def test_compiled_td3_steps_match_eager_on_cpu(monkeypatch):
+def test_compiled_td3_steps_match_eager_on_cpu():
     import torch._inductor.config as inductor
 
     # compiled code draws random numbers with its own generator unless told to use eager's
-    monkeypatch.setattr(inductor, "fallback_random", True)
+    # (inductor's config.patch, not monkeypatch: undoing a monkeypatch removed the setting)
+    with inductor.patch(fallback_random=True):
+        _compiled_td3_steps_match_eager()
+
+
+def _compiled_td3_steps_match_eager():
     over = ["network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}", "td3.policy_delay=1"]
     recipe = load_recipe(QUICK, over)
     compiled = load_recipe(QUICK, [*over, "compile.compile=true"])
