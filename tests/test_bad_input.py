@@ -523,10 +523,10 @@ def test_what_the_model_cannot_represent_is_refused_saying_why(tmp_path, recipe_
 def test_a_nan_action_raises_naming_the_robot():
     """A NaN action is a bug of the policy, not physics: the env raises (naming the robot) rather
     than ending the episode as a blow-up would; a diverging run stops before it acts (above)."""
-    from gcnt.envs.smpenv import make_smpenv
+    from gcnt.envs.smpenv import SMPEnv
     from gcnt.morphology.benchmarks import resolve_robots
 
-    env = make_smpenv(resolve_robots(["hopper_3", "walker_2_main"]), seed=0, num_threads=1)
+    env = SMPEnv(resolve_robots(["hopper_3", "walker_2_main"]), seed=0, num_threads=1)
     try:
         td = env.reset()
         action = (

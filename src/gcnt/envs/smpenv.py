@@ -21,7 +21,7 @@ from gcnt.envs.featurize import OBS_DIM, LimbFeaturizer
 from gcnt.envs.tasks import FRAME_SKIP, PlanarRootRules
 from gcnt.morphology import Robot
 
-__all__ = ["SMPENV_BENCHMARK", "PhysicsBlowupWarning", "SMPEnv", "make_smpenv"]
+__all__ = ["SMPENV_BENCHMARK", "PhysicsBlowupWarning", "SMPEnv"]
 
 #: Action slots per limb in SMPENV (one hinge per limb).
 ACTION_SLOTS = 1
@@ -83,10 +83,6 @@ class SMPEnv(BatchedMujocoEnv):
             robot_ids=robot_ids,
             name="SMPEnv",
         )
-
-
-#: The SMPENV benchmark's env factory (``Benchmark.make_env``): the class itself.
-make_smpenv = SMPEnv
 
 
 SMPENV_BENCHMARK = Benchmark(

@@ -42,7 +42,6 @@ __all__ = [
     "PhysicsBlowupWarning",
     "UnimalEnv",
     "fall_threshold",
-    "make_unimal_env",
 ]
 
 FRAME_SKIP = 4
@@ -115,10 +114,6 @@ class UnimalEnv(BatchedMujocoEnv):
     @property
     def hfield_seconds(self) -> float:
         return self._featurizer.hfield_seconds
-
-
-#: The UNIMAL benchmark's env factory (``Benchmark.make_env``): the class itself.
-make_unimal_env = UnimalEnv
 
 
 UNIMAL_BENCHMARK = Benchmark(
