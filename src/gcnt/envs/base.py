@@ -804,8 +804,8 @@ class BatchedMujocoEnv(EnvBase):
         :meth:`_reset` returns every sub-env's current observation and flags, not only those of
         the reset ones, so its rows that were not reset equal the input's: TorchRL's default
         merge (a masked ``where`` per entry, graph and height map included) would rebuild the
-        same values. Measured on UNIMAL FT with random actions (a few resets per batched step),
-        that merge took about 0.7 ms of a 7 ms step.
+        same values. Profiled (cProfile) on UNIMAL FT with random actions, a few resets per
+        batched step: that merge took 0.70 ms of a 9.4 ms profiled step.
         """
         self._complete_done(self.full_done_spec, tensordict_reset)
         self._reset_check_done(tensordict, tensordict_reset)

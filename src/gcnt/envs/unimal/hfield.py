@@ -91,7 +91,7 @@ class Workspace:
 
     A batch's temporaries (about 4.5 MB for 100 sub-envs) are big enough that the C allocator
     maps fresh pages for each and returns them after: measured in a 100-robot Obstacles env,
-    the page faults made a height map 2.2x slower than with these arrays kept.
+    a full height map took 4.6 ms with fresh arrays and 2.0 ms with these kept.
     """
 
     cells: np.ndarray  # [n, 2, 1410] float64
