@@ -155,17 +155,25 @@ class RunDir:
 
 
 def rng_state() -> dict[str, Any]:
-    return {
+    """The process's global random state: torch (CPU, and every CUDA device once CUDA is in
+    use: target noise and on-device replay draws come from there), NumPy and Python."""
+    state = {
         "torch": torch.get_rng_state(),
         "numpy": np.random.get_state(),
         "python": random.getstate(),
     }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
 
 
 def set_rng_state(state: dict[str, Any]) -> None:
+    """Restore :func:`rng_state` (a CUDA state only where CUDA is available)."""
     torch.set_rng_state(state["torch"])
     np.random.set_state(state["numpy"])
     random.setstate(state["python"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
 
 
 def seed_everything(seed: int) -> None:

@@ -23,11 +23,9 @@ schedules) on one collected batch each; ``gcnt.rl.stacked_loop`` is the training
 from __future__ import annotations
 
 import contextlib
-import random
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictParams
@@ -36,7 +34,8 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from gcnt.nn.keys import ACTION, MORPH_ID
 from gcnt.rl.accelerate import accelerate, optimizer_kwargs
-from gcnt.rl.td3 import TD3, TD3Learner, delayed_update
+from gcnt.rl.run_dir import rng_state, set_rng_state
+from gcnt.rl.td3 import TD3, TD3Learner, delayed_update, loss_rows
 from gcnt.rl.td3_loss import target_noise
 from gcnt.rl.tensor_chain import _has_dropout
 
@@ -269,33 +268,15 @@ def _stack_adam_state(states: list[dict[str, Any]], what: str) -> dict[str, Any]
 
 
 class SeedRNG:
-    """Each seed's global random state (torch's CPU and, on a CUDA device, CUDA generators;
-    NumPy; Python), swapped in while working for that seed."""
+    """Each seed's global random state (:func:`gcnt.rl.run_dir.rng_state`: torch CPU and CUDA,
+    NumPy, Python), swapped in while working for that seed."""
 
-    def __init__(self, num_seeds: int, device: str | torch.device = "cpu") -> None:
-        self.device = torch.device(device)
+    def __init__(self, num_seeds: int) -> None:
         self.states: list[dict[str, Any] | None] = [None] * num_seeds
-
-    def _get(self) -> dict[str, Any]:
-        state = {
-            "torch": torch.get_rng_state(),
-            "numpy": np.random.get_state(),
-            "python": random.getstate(),
-        }
-        if self.device.type == "cuda":
-            state["cuda"] = torch.cuda.get_rng_state(self.device)
-        return state
-
-    def _set(self, state: dict[str, Any]) -> None:
-        torch.set_rng_state(state["torch"])
-        np.random.set_state(state["numpy"])
-        random.setstate(state["python"])
-        if "cuda" in state:
-            torch.cuda.set_rng_state(state["cuda"], self.device)
 
     def capture(self, seed_index: int) -> None:
         """Take the current global state as seed ``seed_index``'s."""
-        self.states[seed_index] = self._get()
+        self.states[seed_index] = rng_state()
 
     @contextlib.contextmanager
     def active(self, seed_index: int) -> Iterator[None]:
@@ -304,13 +285,13 @@ class SeedRNG:
         state = self.states[seed_index]
         if state is None:
             raise RuntimeError(f"SeedRNG: no state captured for seed {seed_index}")
-        outside = self._get()
-        self._set(state)
+        outside = rng_state()
+        set_rng_state(state)
         try:
             yield
         finally:
-            self.states[seed_index] = self._get()
-            self._set(outside)
+            self.states[seed_index] = rng_state()
+            set_rng_state(outside)
 
 
 class StackedTD3:
@@ -329,10 +310,6 @@ class StackedTD3:
         self.rng = rng
         self.learner = StackedTD3Learner([a.learner for a in self.algos])
 
-    def pull(self) -> None:
-        """After seeds' states were loaded into their algorithms: copy them into the stack."""
-        self.learner.pull()
-
     def process(
         self, datas: Sequence[TensorDictBase], env_steps: Sequence[int]
     ) -> list[list[dict[str, float]]]:
@@ -340,11 +317,7 @@ class StackedTD3:
         rows per seed (as :meth:`TD3.process` yields them)."""
         phases = []
         for algo, data, steps in zip(self.algos, datas, env_steps, strict=True):
-            c = algo.config
-            algo.stored += algo.replay.extend(data)
-            algo.schedule.add(data)
-            warm = steps >= c.init_random_frames and int(algo.replay.sizes.min()) >= c.batch_size
-            phases.append(algo.schedule.batches(algo.replay, warm))
+            phases.append(algo.store(data, steps))
         o, device = self.learner.config, self.learner.device
         losses = []
         while True:
@@ -365,15 +338,10 @@ class StackedTD3:
                     "updates in this phase than the others"
                 )
             losses.append(self.learner.step(self.learner.stack_batches(batches, noises)))
-        self.learner.push()
         rows: list[list[dict[str, float]]] = [[] for _ in self.algos]
-        if losses:
-            keys = sorted({k for row in losses for k in row})
-            # one synchronisation per phase: every loss of every seed at once
-            values = {k: torch.stack([row[k] for row in losses if k in row]).tolist() for k in keys}
-            its = {k: iter(v) for k, v in values.items()}
-            for row in losses:
-                per_seed = {k: next(its[k]) for k in row}
-                for i in range(len(self.algos)):
-                    rows[i].append({k: v[i] for k, v in per_seed.items()})
+        if losses:  # nothing to write back before the first update
+            self.learner.push()
+        for per_seed in loss_rows(losses):  # losses [S] each: one value per seed
+            for i in range(len(self.algos)):
+                rows[i].append({k: v[i] for k, v in per_seed.items()})
         return rows

@@ -83,7 +83,7 @@ def seed_recipes(recipe: Recipe, seeds: list[int]) -> list[Recipe]:
 def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
     """Train the seeds' recipes (from :func:`seed_recipes`) together into fresh run
     directories; returns them."""
-    rng = SeedRNG(len(recipes), recipes[0].device)
+    rng = SeedRNG(len(recipes))
     prepared: list[Prepared] = []
     try:
         # each seed is built as its own run would be (seeded globally, then its state kept)

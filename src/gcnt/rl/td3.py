@@ -251,6 +251,17 @@ def delayed_update(learner, batch: TensorDictBase) -> dict[str, torch.Tensor]:
     return out
 
 
+def loss_rows(losses: list[dict[str, torch.Tensor]]) -> list[dict[str, Any]]:
+    """A phase's loss dicts (tensors on the device) as plain values, read with one
+    synchronisation for the whole phase."""
+    if not losses:
+        return []
+    keys = sorted({k for row in losses for k in row})
+    values = {k: torch.stack([row[k] for row in losses if k in row]).tolist() for k in keys}
+    its = {k: iter(v) for k, v in values.items()}
+    return [{k: next(its[k]) for k in row} for row in losses]
+
+
 class UpdateSchedule:
     """When to update and on what: yields the mini-batches of each update phase."""
 
@@ -331,19 +342,18 @@ class TD3(Algorithm):
         random_left = _whole_batches(max(0, c.init_random_frames - env_steps), fpb)
         return CollectSettings(explore, fpb, random_left)
 
-    def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
+    def store(self, data: TensorDictBase, env_steps: int) -> Iterator[TensorDictBase]:
+        """Store a collected batch; the mini-batches of the update phase the schedule then asks
+        for (none before ``init_random_frames`` or while a robot holds fewer than a batch)."""
         c = self.config
         self.stored += self.replay.extend(data)
         self.schedule.add(data)
         warm = env_steps >= c.init_random_frames and int(self.replay.sizes.min()) >= c.batch_size
+        return self.schedule.batches(self.replay, warm)
+
+    def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
         # the losses stay on the device during a phase: one synchronisation per phase
-        losses = [self.learner.step(batch) for batch in self.schedule.batches(self.replay, warm)]
-        if losses:
-            keys = sorted({k for row in losses for k in row})
-            values = {k: torch.stack([row[k] for row in losses if k in row]).tolist() for k in keys}
-            its = {k: iter(v) for k, v in values.items()}
-            for row in losses:
-                yield {k: next(its[k]) for k in row}
+        yield from loss_rows([self.learner.step(batch) for batch in self.store(data, env_steps)])
 
     def resolved(self) -> dict[str, Any]:
         c, fpb = self.config, self._frames_per_batch()
