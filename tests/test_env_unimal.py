@@ -603,3 +603,23 @@ def test_determinism(robots, world):
     assert torch.equal(a["limbs", "obs"], b["limbs", "obs"])
     if world == "obstacles":
         assert torch.equal(a["hfield"], b["hfield"])
+
+
+def test_a_robot_pool_on_mt_keeps_one_terrain_per_sub_env(robots):
+    """Robots changing slots at resets (PPO's robot sampling) on a world with per-episode
+    terrain: each new robot gets a private model with its own height field, the retired models'
+    terrains are forgotten (no growth over many resets), and the height map still reads the
+    current terrain of each sub-env."""
+    env = UnimalEnv(robots[:2], world="mt", seed=4, num_threads=1, max_limbs=12)
+    order = iter([[2, 0], [1, 2], [0, 1], [2, 2], [1, 0], [0, 2]] * 3)
+    env.use_robot_pool(robots, lambda rows: np.array(next(order)[: len(rows)]))
+    for _ in range(18):
+        td = env.reset()
+        assert len(env._terrains) == 2
+        models = [env.sim(i)[0] for i in range(2)]
+        assert models[0] is not models[1]
+        assert {id(m) for m in models} == set(env._terrains)
+    for i in range(2):  # the height map reads the sub-env's own terrain table
+        assert env.task_rules(i).terrain.grid.base is env._featurizer._tables
+    assert torch.isfinite(td["hfield"]).all()
+    env.close()

@@ -55,6 +55,7 @@ collectors a constructor (``functools.partial(SMPEnv, robots, ...)``), not an in
 
 from __future__ import annotations
 
+import copy
 import logging
 import os
 import threading
@@ -453,6 +454,8 @@ class BatchedMujocoEnv(EnvBase):
             first.setdefault(lid, rl)
             models.append(model)
             sub_rules.append(rl)
+        #: whether the task rules edit their sub-env's model (each sub-env then has its own)
+        self._edits_model = any(rl.edits_model for rl in sub_rules)
         k_table = max_limbs or max(r.num_limbs for r in robots)
         self._check_sizes(k_table)
         self._featurizer = featurizer(robots, models, k_table)
@@ -953,10 +956,9 @@ class BatchedMujocoEnv(EnvBase):
                 continue
             r, model = pool[p], self._pool_models[p]
             dt = float(model.opt.timestep) * self.frame_skip
+            if self._edits_model:  # a private model, as at construction (copy.copy: a deep copy)
+                model = copy.copy(model)
             rules = self.rules_factory(r, model, dt)
-            if rules.edits_model:  # a private model, as at construction
-                model = self.compile_model(r)
-                rules = self.rules_factory(r, model, dt)
             data = mujoco.MjData(model)
             self._sims[i] = _Sim(
                 i, r, model, data, rules, slice(0, 0), data.ctrl, data.warning.number

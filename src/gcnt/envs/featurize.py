@@ -43,6 +43,25 @@ _ROLL1 = np.array([1, 2, 0])
 _ROLL2 = np.array([2, 0, 1])
 
 
+def torso_relative_position(xpos: np.ndarray, mask: np.ndarray, out: np.ndarray) -> None:
+    """Body positions [n, K, 3] into ``out``, x relative to the torso's (row 0) x; padded
+    limbs' x (``mask`` 0) zeroed."""
+    out[...] = xpos
+    x = out[..., 0]
+    x -= xpos[:, :1, 0]
+    x *= mask
+
+
+def origin_velocity(xpos: np.ndarray, com: np.ndarray, cvel: np.ndarray, out: np.ndarray) -> None:
+    """Linear velocity of each body-frame origin p into ``out`` [n, K, 3]: v(c) + ω × (p − c),
+    from MuJoCo's ``cvel`` [n, K, 6] (about the subtree centre of mass ``com`` [n, 3])."""
+    w = cvel[..., :3]
+    r = xpos - com[:, None, :]
+    np.multiply(w[..., _ROLL1], r[..., _ROLL2], out=out)
+    out -= w[..., _ROLL2] * r[..., _ROLL1]
+    out += cvel[..., 3:]
+
+
 @dataclass
 class GatherBuffers:
     """Per-sub-env rows copied out of MjData, for n sub-envs padded to K limbs."""
@@ -228,16 +247,10 @@ class LimbFeaturizer(Featurizer):
         dyn = np.empty((*xpos.shape[:2], 12))
         w = cvel[..., :3]
         # 0:3 body-frame position, x relative to the torso's x
-        dyn[..., 0:3] = xpos
-        x = dyn[..., 0]
-        x -= xpos[:, :1, 0]
-        x *= maskf
+        torso_relative_position(xpos, maskf, dyn[..., 0:3])
         # 3:6 velocity of the body-frame origin p: v(p) = v(c) + ω × (p − c), clipped
-        r = xpos - com[:, None, :]
         v = dyn[..., 3:6]
-        np.multiply(w[..., _ROLL1], r[..., _ROLL2], out=v)
-        v -= w[..., _ROLL2] * r[..., _ROLL1]
-        v += cvel[..., 3:]
+        origin_velocity(xpos, com, cvel, v)
         np.clip(v, -VEL_CLIP, VEL_CLIP, out=v)
         # 6:9 angular velocity
         dyn[..., 6:9] = w

@@ -81,7 +81,6 @@ class SMPEnv(BatchedMujocoEnv):
             seed=seed,
             num_threads=num_threads,
             robot_ids=robot_ids,
-            name="SMPEnv",
         )
 
 

@@ -86,7 +86,8 @@ class UnimalEnv(BatchedMujocoEnv):
         self.world = world
         spec = WORLDS[world]
         # The rules of each sub-env own its terrain; the featuriser finds it by model.
-        terrains: dict[int, object] = {}
+        self._terrains: dict[int, object] = {}
+        terrains = self._terrains
 
         def rules(robot: Robot, model: mujoco.MjModel, dt: float) -> UnimalRules:
             rl = UnimalRules(robot, model, dt, world)
@@ -95,10 +96,18 @@ class UnimalEnv(BatchedMujocoEnv):
             return rl
 
         terrain_of = (lambda model: terrains[id(model)]) if spec.height_map else None
+
+        def featurizer(robots: Sequence[Robot], models, k: int) -> UnimalFeaturizer:
+            # a robot pool swaps sub-envs' models: forget the terrains of models gone
+            live = {id(m) for m in models}
+            for key in [key for key in terrains if key not in live]:
+                del terrains[key]
+            return UnimalFeaturizer(robots, models, k, terrain_of=terrain_of)
+
         super().__init__(
             robots,
             max_limbs,
-            featurizer=functools.partial(UnimalFeaturizer, terrain_of=terrain_of),
+            featurizer=featurizer,
             rules=rules,
             action_slots=ACTION_SLOTS,
             frame_skip=frame_skip,
@@ -107,7 +116,6 @@ class UnimalEnv(BatchedMujocoEnv):
             seed=seed,
             num_threads=num_threads,
             robot_ids=robot_ids,
-            name="UnimalEnv",
             compile_model=functools.partial(world_model, world=world),
         )
 

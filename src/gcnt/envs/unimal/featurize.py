@@ -42,6 +42,7 @@ import mujoco
 import numpy as np
 
 from gcnt.envs.base import Featurizer
+from gcnt.envs.featurize import origin_velocity, torso_relative_position
 from gcnt.envs.unimal import hfield as H
 from gcnt.morphology import Robot
 
@@ -67,9 +68,6 @@ CONTEXT_HI = np.array(
     [0.5, 0.45, 2.04, 0.225, 0.225, 0.0, *_Q_HI, *_Q_HI, 4.189, 0.1, 0.226, *_SLOT_HI, *_SLOT_HI]
 )
 assert CONTEXT_LO.shape == CONTEXT_HI.shape == (CONTEXT_DIM,)
-
-_ROLL1 = np.array([1, 2, 0])
-_ROLL2 = np.array([2, 0, 1])
 
 
 def static_features(robot: Robot, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
@@ -257,18 +255,12 @@ class UnimalFeaturizer(Featurizer):
         else:
             np.copyto(out, tpl)
         # 0:3 position, x relative to the torso
-        out[..., 0:3] = xpos
-        x = out[..., 0]
-        x -= xpos[:, :1, 0]
-        x *= maskf
+        torso_relative_position(xpos, maskf, out[..., 0:3])
         # 3:6 velocity of the body-frame origin: v(c) + ω × (p − c)
-        w = cvel[..., :3]
-        r = xpos - com[:, None, :]
         v = out[..., 3:6]
-        np.multiply(w[..., _ROLL1], r[..., _ROLL2], out=v)
-        v -= w[..., _ROLL2] * r[..., _ROLL1]
-        v += cvel[..., 3:]
+        origin_velocity(xpos, com, cvel, v)
         v *= maskf[..., None]
+        w = cvel[..., :3]
         # 6:9 angular velocity, 9:13 orientation
         out[..., 6:9] = w
         out[..., 9:13] = xquat

@@ -10,8 +10,8 @@ metres minus the height at the vertex under the torso; outside the world the tab
 ``OUTSIDE`` (−10) and on walls ``WALL`` (4) before that subtraction, as in the original
 MetaMorph code. Flattened row-major: index = row × 30 + column.
 
-Index arithmetic runs on all sub-envs at once ([n, 1410] arrays); only the final table lookup is
-one ``np.take`` per sub-env (each has its own terrain).
+Index arithmetic runs on all sub-envs at once ([n, 1410] arrays), and the lookup is one
+``np.take`` in the sub-envs' tables stacked in one array (each has its own terrain).
 """
 
 from __future__ import annotations
