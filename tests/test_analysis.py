@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
@@ -131,9 +132,11 @@ def test_zero_shot_table(sweep: Path) -> None:
     t = table["Walker++"]
     assert t["robots"] == TEST and t["methods"] == ["gcnt", "swat", "amorpheus"]
     cell = t["cells"][TEST[0]]["gcnt"]
-    # per seed the latest, largest evaluation: the test evaluation (same steps, same episodes,
-    # and both list the robot): either way a seed's own mean; over seeds mean ± s.e.
-    assert cell["seeds"] == 2 and set(cell["per_seed"]) == {"0", "1"}
+    # per seed the latest, largest evaluation; the training and the test evaluation tie on steps
+    # and episodes, and the test one wins: 600 + seed; over seeds mean ± s.e.
+    assert cell["seeds"] == 2 and cell["per_seed"] == {"0": 600.0, "1": 601.0}
+    assert cell["mean"] == pytest.approx(600.5) and cell["stderr"] == pytest.approx(0.5)
+    assert all("test-step" in src for src in cell["sources"])
     assert t["best"][TEST[0]] == "gcnt"
     md = zeroshot.to_markdown(table)
     assert "| robot | gcnt | swat | amorpheus |" in md and md.count("**") == 2 * len(TEST)
@@ -227,3 +230,22 @@ def test_eval_labels_old_and_new_file_names(sweep: Path) -> None:
     labels = sorted((e.label, e.env_steps) for e in run.evals())
     assert labels == [("", 4000), ("test", 4000)]
     assert [e.matches("test") for e in sorted(run.evals(), key=lambda e: e.label)] == [False, True]
+
+
+def test_default_variant_sets_match_gcnt_eval_of_the_unimal_splits() -> None:
+    """`gcnt variants`' default sets are the names `gcnt eval --robots Unimal:variants-...`
+    leaves in its evaluation files."""
+    from gcnt.analysis.runs import EvalRecord
+    from gcnt.commands import variants as cmd
+    from gcnt.commands.eval import _label
+
+    parser = argparse.ArgumentParser()
+    cmd.add_arguments(parser)
+    sets = parser.parse_args(["x"]).sets.split(",")
+    for spec, name in zip(
+        ["Unimal:variants-kinematics", "Unimal:variants-dynamics"], sets, strict=True
+    ):
+        rec = EvalRecord(Path(f"{_label([spec])}-step10.json"), _label([spec]), 10, {},
+                         {"robots_spec": [spec]})  # fmt: skip
+        assert rec.matches(name)
+        assert not rec.matches(sets[1 - sets.index(name)])

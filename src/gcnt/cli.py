@@ -54,7 +54,10 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     errors: list[type[BaseException]] = [RecipeError, FileExistsError, FileNotFoundError]
     for module, names in (
         ("gcnt.morphology.robot", ("RobotFileError",)),
-        ("gcnt.morphology.benchmarks", ("UnknownRobotError", "BenchmarkFileError")),
+        (
+            "gcnt.morphology.benchmarks",
+            ("UnknownRobotError", "BenchmarkFileError", "DuplicateRobotError"),
+        ),
         ("gcnt.envs.robot_table", ("RobotTooLargeError",)),
         ("gcnt.rl.run_dir", ("CheckpointError", "RunDirError")),
         ("gcnt.rl.loop", ("TrainingDivergedError",)),

@@ -2,7 +2,8 @@
 
 A *set* is a group of evaluations named the same way: ``gcnt eval RUN --robots SPEC`` keeps each
 evaluation under a label saying what was evaluated, and a set name matches that label or a part
-of the evaluated robot specification (e.g. ``kinematics`` matches ``UNIMAL:kinematics``).
+of the evaluated robot specification (e.g. ``variants-kinematics`` matches
+``Unimal:variants-kinematics``).
 
 Scores are each seed's mean return per robot. The aggregate of a method on a set is the mean
 over robots of the mean over seeds (optionally the interquartile mean, IQM, of all seed x robot

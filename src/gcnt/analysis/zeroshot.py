@@ -27,11 +27,19 @@ def seed_score(
     evals: Sequence[EvalRecord], robot: str, label: str | None = None
 ) -> tuple[float, EvalRecord] | None:
     """A run's mean return on ``robot`` from its latest, largest evaluation of it (``evals``: the
-    run's evaluations, ``Run.evals()``)."""
+    run's evaluations, ``Run.evals()``); between equals, a test evaluation (``gcnt eval --robots
+    test``) wins over the one made during training."""
     evals = [e for e in evals if robot in e.robots and (label is None or e.matches(label))]
     if not evals:
         return None
-    best = max(evals, key=lambda e: (e.env_steps, int(e.robots[robot].get("episodes") or 0)))
+    best = max(
+        evals,
+        key=lambda e: (
+            e.env_steps,
+            int(e.robots[robot].get("episodes") or 0),
+            e.matches("test"),
+        ),
+    )
     return float(best.robots[robot]["mean"]), best
 
 

@@ -1,4 +1,4 @@
-"""``gcnt variants DIR... --sets kinematics,dynamics``: returns on robot variant sets (paper
+"""``gcnt variants DIR... --sets variants-kinematics,variants-dynamics``: returns on robot variant sets (paper
 figure 8) per method, with 95% stratified bootstrap confidence intervals (scipy).
 
 A set name matches an evaluation's label or part of its robot spec (``gcnt eval RUN --robots
@@ -19,8 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="DIR", help="run or sweep directories")
     p.add_argument(
         "--sets",
-        default="kinematics,dynamics",
-        help="comma-separated evaluation labels / robot specs (default: kinematics,dynamics)",
+        default="variants-kinematics,variants-dynamics",
+        help="comma-separated evaluation labels / robot specs (default: variants-kinematics,variants-dynamics, the UNIMAL splits)",
     )
     p.add_argument("--iqm", action="store_true", help="also the interquartile mean (IQM)")
     p.add_argument("--profile", action="store_true", help="also performance profiles")
