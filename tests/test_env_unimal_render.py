@@ -76,13 +76,13 @@ def test_bench_env_unimal(capsys, world):
         assert 0 < share < 1
 
 
-def test_bench_env_defaults_to_the_training_split():
+def test_bench_env_defaults_to_the_training_split(capsys):
     from gcnt.commands import bench_env
 
     parser = argparse.ArgumentParser()
     bench_env.add_arguments(parser)
-    assert parser.parse_args([]).robots is None  # resolved from Benchmark.train_split
-    from gcnt.envs.benchmark import get_benchmark
-
-    assert get_benchmark("unimal").train_split == "Unimal:train"
-    assert get_benchmark("smpenv").train_split == "CWHH++:train"
+    args = parser.parse_args(["--steps", "2", "--rounds", "1", "--threads", "1", "--json"])
+    assert args.robots is None  # resolved from Benchmark.train_split: CWHH++'s 25 robots
+    assert bench_env.run(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["benchmark"] == "smpenv" and result["robots"] == 25

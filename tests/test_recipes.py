@@ -1,3 +1,4 @@
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -9,8 +10,12 @@ RECIPES = sorted(Path(__file__).parents[1].joinpath("recipes").rglob("*.yaml"))
 
 @pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(p.parents[1])))
 def test_every_recipe_file_validates(path):
+    from gcnt.recipes import algorithm_section
+
     recipe = load_recipe(path)
-    assert recipe.algo_config is recipe.sections[recipe.algo]
+    config = recipe.algo_config  # the active section, validated
+    assert type(config) is algorithm_section(recipe.algo)
+    assert recipe.to_dict()[recipe.algo] == dataclasses.asdict(config)
 
 
 def test_paper_td3_settings_in_the_smpenv_recipes():

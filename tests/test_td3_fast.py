@@ -96,9 +96,13 @@ def test_one_storage_holds_what_the_ensemble_holds_and_gives_the_same_loss(tmp_p
         # find each sampled row of robot r in the ensemble's storage by its observation
         sampled = mixed[mixed["morph_id"] == r]
         match = (sampled["limbs", "obs"][:, None] == stored["limbs", "obs"][None]).flatten(2)
+        assert match.all(-1).any(-1).all()  # every sampled row is one the robot stored
         idx = match.all(-1).float().argmax(-1)
         rows.append(stored[idx])
     from_ensemble = torch.cat(rows)
+    # the one-storage sample is those per-robot rows, in the same order, on every stored key
+    for key in rb.STORED_KEYS:
+        assert torch.equal(mixed.get(key), from_ensemble.get(key)), key
     learner = TD3Learner(recipe, env)
     torch.manual_seed(0)
     a = learner.critic_loss(mixed)

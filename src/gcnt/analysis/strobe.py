@@ -24,6 +24,7 @@ DEFAULT_ROBOT = "humanoid_2d_9_full"
 def _policy_and_env(run: Run, robot: str, seed: int):
     """The run's trained deterministic policy and a one-robot env for ``robot``."""
     from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.rl.algorithm import get_algorithm
     from gcnt.rl.factories import make_env
     from gcnt.rl.run_dir import RunDir
 
@@ -33,18 +34,7 @@ def _policy_and_env(run: Run, robot: str, seed: int):
     robots = resolve_robots([robot])
     train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
     max_limbs = max(train_k, *(r.num_limbs for r in robots))
-    try:
-        env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs, num_threads=1)
-    except TypeError:  # make_env without num_threads (runs from before the algorithm seam)
-        env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs)
-    try:
-        from gcnt.rl.algorithm import get_algorithm
-    except ImportError:  # older layout: a TD3 actor's weights under "actor"
-        from gcnt.rl.factories import make_net
-
-        actor = make_net(recipe, env.base_env.table, "td3_actor")
-        actor.load_state_dict(state["actor"])
-        return actor.eval(), env
+    env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs, num_threads=1)
     policy_state = state.get("policy") or {"actor": state.get("actor")}
     policy = get_algorithm(recipe.algo).eval_policy(recipe, policy_state, env, deterministic=True)
     return policy, env
