@@ -55,13 +55,6 @@ def adjacency(parents: np.ndarray) -> np.ndarray:
     return adj
 
 
-def gcn_normalized_adjacency(adj: np.ndarray) -> np.ndarray:
-    """The GCN propagation matrix D̃^-½ (A + I) D̃^-½ (float32)."""
-    a = adj.astype(np.float64) + np.eye(len(adj))
-    d = 1.0 / np.sqrt(a.sum(1))
-    return (d[:, None] * a * d[None, :]).astype(np.float32)
-
-
 def hop_distances(adj: np.ndarray) -> np.ndarray:
     """All-pairs shortest-path hop counts by BFS (int64 [K, K]; -1 if unreachable)."""
     k = len(adj)

@@ -15,13 +15,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from gcnt.envs.robot_table import STATIC_KEYS as TABLE_KEYS
-from gcnt.envs.robot_table import RobotTooLargeError
+from gcnt.envs.robot_table import STATIC_KEYS, RobotTooLargeError
 from gcnt.nn import keys as K
-
-#: every static key a chain may restore: the robot table's graph keys and the static limb
-#: context ``limbs/context`` [R, K, C] (UNIMAL tables; ModuMorph and GCNT+HN read it)
-STATIC_KEYS: tuple = TABLE_KEYS + tuple(k for k in (K.CONTEXT,) if k not in TABLE_KEYS)
 
 _BUFFER_PREFIX = "table_"
 

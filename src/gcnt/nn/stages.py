@@ -22,7 +22,6 @@ from gcnt.nn.layers import (
     HyperLinear,
     TransformerEncoder,
     flatten_lead,
-    last_linear,
     mlp,
     scaled,
 )
@@ -326,7 +325,7 @@ class ContextMLP(nn.Module):
         self.net = mlp(ctx_dim, widths[:-1], widths[-1], final_activation=final_activation)
 
     def forward(self, ctx: Tensor) -> Tensor:
-        return self.net(ctx.to(last_linear(self.net).weight.dtype))
+        return self.net(ctx.to(self.net[0].weight.dtype))
 
 
 def context_stage(
@@ -365,7 +364,7 @@ class HFieldEncoder(nn.Module):
         self.net = mlp(hfield_dim, (width,), width, final_activation=True)
 
     def forward(self, hfield: Tensor) -> Tensor:
-        return self.net(hfield.to(last_linear(self.net).weight.dtype))
+        return self.net(hfield.to(self.net[0].weight.dtype))
 
 
 def hfield_stage(hfield_dim: int) -> TensorDictModule:
