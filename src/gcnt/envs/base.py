@@ -419,8 +419,6 @@ class BatchedMujocoEnv(EnvBase):
         #: that steps the same robots outside the env)
         self.rules_factory = rules
         self._featurizer_factory = featurizer
-        # robot pool (see use_robot_pool): None while each sub-env keeps its robot
-        self._pool_sample: Callable[[np.ndarray], np.ndarray] | None = None
         #: the ``sample`` given to :meth:`use_robot_pool` (None: each sub-env keeps its robot)
         self.robot_pool_sampler: Callable[[np.ndarray], np.ndarray] | None = None
         self._pool_models: list[mujoco.MjModel] = []
@@ -783,8 +781,8 @@ class BatchedMujocoEnv(EnvBase):
         else:
             which = mask.reshape(n).cpu().numpy().astype(bool)
         rows = np.nonzero(which)[0]
-        if self._pool_sample is not None and len(rows):
-            self._reassign(rows, self._pool_sample(rows))
+        if self.robot_pool_sampler is not None and len(rows):
+            self._reassign(rows, self.robot_pool_sampler(rows))
         for i in rows:
             s = self._sims[i]
             mujoco.mj_resetData(s.model, s.data)  # qpos = qpos0: every joint at its ref
@@ -938,7 +936,7 @@ class BatchedMujocoEnv(EnvBase):
         self.distinct_robots = pool
         self.local_ids = torch.tensor([index[_robot_key(r)] for r in self.robots])
         self.morph_ids = self.local_ids.clone()
-        self._pool_sample = self.robot_pool_sampler = sample
+        self.robot_pool_sampler = sample
         self._relayout()
 
     def _reassign(self, rows: np.ndarray, ids) -> None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from gcnt.suggest import did_you_mean
@@ -51,7 +51,6 @@ class Benchmark:
     train_split: str = ""
     #: extra documentation shown by ``gcnt robots``
     description: str = ""
-    notes: dict[str, Any] = field(default_factory=dict)
 
     def check_world(self, world: str | None) -> str | None:
         """The world to build (``world`` or the default); a ValueError names an unknown one."""

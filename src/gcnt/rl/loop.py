@@ -15,6 +15,7 @@ import logging
 import math
 import time
 from collections import defaultdict
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -160,13 +161,12 @@ def train(
                     env_steps += data.numel()
                     bar.update(data.numel())
                     stats.add_episodes(data)
-                    for losses in algo.process(data, env_steps):
-                        stats.add_losses(losses)
-                        _check_losses(run, losses, env_steps, algo.updates)
-                    check_policy(run, algo, env_steps)  # before the policy acts again
+                    row = after_update(
+                        recipe, run, algo, logger, stats, cadence,
+                        algo.process(data, env_steps), env_steps,
+                    )  # fmt: skip
                     if multi:
                         collector.update_policy_weights_()
-                    row = cadence.after_batch(recipe, run, algo, logger, stats, env_steps)
                     if row is not None:
                         bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
                     if env_steps >= total:
@@ -216,6 +216,27 @@ def make_collector(recipe: Recipe, env: EnvBase, settings: CollectSettings):
         auto_register_policy_transforms=False,  # the policies need no InitTracker
         **collector_kwargs(recipe.compile),  # compile.policy_compile / policy_cudagraphs
     )
+
+
+def after_update(
+    recipe: Recipe,
+    run: RunDir,
+    algo: Algorithm,
+    logger,
+    stats: TrainStats,
+    cadence: Cadence,
+    rows: Iterable[dict[str, float]],
+    env_steps: int,
+) -> dict | None:
+    """What follows a batch's update phase (``rows``: its loss rows, as ``Algorithm.process``
+    yields them): the rows counted and checked, the policy checked before it acts again (a run
+    stops at a non-finite loss or weight), then logging, checkpoint and evaluation when due.
+    Returns the logged row, if one was."""
+    for losses in rows:
+        stats.add_losses(losses)
+        _check_losses(run, losses, env_steps, algo.updates)
+    check_policy(run, algo, env_steps)
+    return cadence.after_batch(recipe, run, algo, logger, stats, env_steps)
 
 
 def check_policy(run: RunDir, algo: Algorithm, env_steps: int) -> None:
@@ -312,9 +333,8 @@ def _check_losses(run: RunDir, losses: dict, env_steps: int, updates: int) -> No
 def _checkpoint(run: RunDir, algo: Algorithm, env_steps: int) -> None:
     """Write the checkpoint, unless the weights went non-finite (the last good one stays)."""
     learner = algo.state_dict()
-    bad = _non_finite(learner)
-    if bad:
-        raise _diverged(run, f"non-finite values in {bad}", env_steps)
+    if not _all_finite(learner):  # one check; the slow per-tensor search only to name the culprit
+        raise _diverged(run, f"non-finite values in {_non_finite(learner)}", env_steps)
     has_buffers = algo.buffers_state(run.buffers_dir)
     run.save_checkpoint(
         {

@@ -29,8 +29,7 @@ from gcnt.rl.loop import (
     Cadence,
     Prepared,
     TrainStats,
-    _check_losses,
-    check_policy,
+    after_update,
     finish,
     make_collector,
     prepare,
@@ -144,14 +143,11 @@ def _lockstep(
                         bar.update(data.numel())
                     rows = stacked.process(datas, env_steps)
                     for i in range(n):
-                        for losses in rows[i]:
-                            stats[i].add_losses(losses)
-                            _check_losses(runs[i], losses, env_steps[i], algos[i].updates)
-                        check_policy(runs[i], algos[i], env_steps[i])
                         with rng.active(i):  # its checkpoint keeps its own random state
-                            cadences[i].after_batch(
-                                recipes[i], runs[i], algos[i], loggers[i], stats[i], env_steps[i]
-                            )
+                            after_update(
+                                recipes[i], runs[i], algos[i], loggers[i], stats[i],
+                                cadences[i], rows[i], env_steps[i],
+                            )  # fmt: skip
             finally:
                 bar.close()
     finally:
