@@ -249,3 +249,35 @@ def test_default_variant_sets_match_gcnt_eval_of_the_unimal_splits() -> None:
                          {"robots_spec": [spec]})  # fmt: skip
         assert rec.matches(name)
         assert not rec.matches(sets[1 - sets.index(name)])
+
+
+def test_embed_and_strobe_read_a_trained_run(tmp_path: Path) -> None:
+    """The trained-run paths of `gcnt embed` and `gcnt strobe`: the actor's weights come from the
+    run's checkpoint (`Run.policy_state`), one run per method by default."""
+    root = Path(__file__).parents[1]
+    run = tmp_path / "run"
+    tiny = [
+        "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}",
+        "env.max_episode_steps=15",
+        "td3.init_random_frames=30",
+        "td3.steps_per_batch=5",
+        "td3.batch_size=8",
+        "logger.backend=none",
+        "logger.progress=false",
+        "collector.total_frames=60",
+        "eval.episodes=1",
+        f"run_dir={run}",
+    ]
+    assert main(["train", str(root / "recipes/quickstart.yaml"), *tiny]) == 0
+    state = find_runs([run])[0].policy_state()
+    assert set(state) >= {"actor"} and state["actor"]
+    out = tmp_path / "fig"
+    argv = ["embed", str(run), "--robots", "Hopper++:all", "--out", str(out)]
+    assert main(argv) == 0
+    assert (out / "embed.png").read_bytes()[:4] == b"\x89PNG"
+    assert (
+        main(["strobe", str(run), "--robot", "hopper_3", "--steps", "20", "--out", str(out)]) == 0
+    )
+    assert len(list(out.glob("strobe-hopper_3-*.png"))) == 1
+    (run / "checkpoints" / "last.pt").write_bytes(b"not a checkpoint")
+    assert main(["embed", str(run), "--out", str(out)]) == 2  # one line naming the file

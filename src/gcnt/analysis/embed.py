@@ -121,18 +121,8 @@ def structural_vectors(
 
 def run_embedding(run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS) -> Embedding:
     """Structural vectors of a run's trained actor (its latest checkpoint)."""
-    import torch
-
     net = run.recipe.get("network") or {}
-    ckpt = run.path / "checkpoints" / "last.pt"
-    if not ckpt.is_file():
-        raise AnalysisError(f"{run.path}: no checkpoint to read the network from")
-    state = torch.load(ckpt, map_location="cpu", weights_only=False)
-    state = state if isinstance(state, dict) else {}
-    policy = state.get("policy") if isinstance(state.get("policy"), dict) else {}
-    actor_state = policy.get("actor") or state.get("actor")
-    if actor_state is None:
-        raise AnalysisError(f"{ckpt}: no 'actor' weights in the checkpoint")
+    actor_state = run.policy_state()["actor"]
     return structural_vectors(
         run.method,
         robot_specs,
@@ -141,7 +131,7 @@ def run_embedding(run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS) -> Embe
         preset=net.get("preset"),
         kwargs=dict(net.get("kwargs") or {}),
         role="ppo_actor" if run.algo == "ppo" else "td3_actor",
-        title=f"{run.method} ({run.task}, seed {run.seed}, {state.get('env_steps', '?')} steps)",
+        title=f"{run.method} ({run.task}, seed {run.seed}, {run.last_env_steps()} steps)",
     )
 
 

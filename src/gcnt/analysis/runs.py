@@ -156,6 +156,21 @@ class Run:
     def has_checkpoint(self) -> bool:
         return (self.path / CHECKPOINT).is_file()
 
+    def policy_state(self) -> dict[str, Any]:
+        """The trained policy's weights from the last checkpoint (``{"actor": ...}``, and the
+        observation statistics where the algorithm keeps them); an unreadable checkpoint is an
+        AnalysisError naming it."""
+        from gcnt.rl.run_dir import CheckpointError, RunDir
+
+        try:
+            state = RunDir(self.path).load_checkpoint()
+        except CheckpointError as e:
+            raise AnalysisError(str(e)) from None
+        policy = state.get("policy") or {"actor": state.get("actor")}
+        if policy.get("actor") is None:
+            raise AnalysisError(f"{self.path / CHECKPOINT}: no 'actor' weights in the checkpoint")
+        return policy
+
     def finished(self) -> bool:
         """The run logged its last step (``collector.total_frames``) and saved a checkpoint."""
         total = self.total_frames
@@ -227,6 +242,14 @@ def find_runs(paths: Iterable[str | Path]) -> list[Run]:
             f"no run directories (with {RECIPE_FILE}) under {', '.join(map(str, paths))}"
         )
     return sorted(runs.values(), key=lambda r: (r.task, method_key(r.method), r.seed, str(r.path)))
+
+
+def first_seed_per_method(runs: Sequence[Run]) -> list[Run]:
+    """One run per (task, algorithm, method): the first one listed."""
+    first: dict[tuple[str, str, str], Run] = {}
+    for r in runs:
+        first.setdefault((r.task, r.algo, r.method), r)
+    return list(first.values())
 
 
 def method_key(method: str) -> tuple[int, str]:

@@ -28,14 +28,12 @@ def _policy_and_env(run: Run, robot: str, seed: int):
     from gcnt.rl.factories import make_env
     from gcnt.rl.run_dir import RunDir
 
-    rd = RunDir(run.path)
-    recipe = rd.load_recipe()
-    state = rd.load_checkpoint()
+    recipe = RunDir(run.path).load_recipe()
+    policy_state = run.policy_state()
     robots = resolve_robots([robot])
     train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
     max_limbs = max(train_k, *(r.num_limbs for r in robots))
     env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs, num_threads=1)
-    policy_state = state.get("policy") or {"actor": state.get("actor")}
     policy = get_algorithm(recipe.algo).eval_policy(recipe, policy_state, env, deterministic=True)
     return policy, env
 

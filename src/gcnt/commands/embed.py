@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
 
     from gcnt.analysis.embed import STRUCTURAL_METHODS, plot_embeddings, run_embedding
     from gcnt.analysis.embed import structural_vectors as vectors
-    from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+    from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
 
     embeddings = []
     try:
@@ -46,11 +46,7 @@ def run(args: argparse.Namespace) -> int:
                     f"no GCNT or SWAT run in {', '.join(args.paths)} "
                     f"(methods with structural vectors: {', '.join(STRUCTURAL_METHODS)})"
                 )
-            seen: set[tuple[str, str]] = set()
-            for r in runs:
-                if not args.all_seeds and (r.task, r.method) in seen:
-                    continue
-                seen.add((r.task, r.method))
+            for r in runs if args.all_seeds else first_seed_per_method(runs):
                 embeddings.append(run_embedding(r, args.robots))
         untrained = (
             args.untrained

@@ -28,16 +28,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+    from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
     from gcnt.analysis.strobe import strobe_run
 
     try:
         runs = find_runs(args.paths)
         if not args.all_seeds:
-            first: dict[tuple[str, str, str], object] = {}
-            for r in runs:
-                first.setdefault((r.task, r.algo, r.method), r)
-            runs = list(first.values())
+            runs = first_seed_per_method(runs)
         out = args.out or default_out(args.paths)
         for r in runs:
             path = strobe_run(
