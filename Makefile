@@ -4,7 +4,6 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.gcnt-installed
-export MUJOCO_GL ?= egl
 
 .PHONY: train test lint install clean-venv
 

@@ -2,7 +2,7 @@
 
 Compiling takes minutes on a small shared CPU, so this runs only when asked:
 ``GCNT_TEST_COMPILE=1 pytest tests/test_accelerate.py``. The switches themselves (accepted,
-CUDA-only ones rejected on a CPU) are tested in tests/test_td3_fast.py.
+CUDA-only ones rejected on a CPU) are tested in tests/test_accelerate_switches.py.
 """
 
 import os
@@ -12,9 +12,9 @@ import pytest
 import torch
 
 from gcnt.recipes import load_recipe
-from gcnt.rl import replay as rb
 from gcnt.rl.factories import make_env, train_robots
-from gcnt.rl.td3 import TD3Learner
+from gcnt.rl.td3 import replay as rb
+from gcnt.rl.td3.learner import TD3Learner
 
 QUICK = Path(__file__).parents[1] / "recipes/quickstart.yaml"
 
@@ -66,7 +66,7 @@ def test_compiled_ppo_loss_matches_eager_on_cpu(tmp_path):
     from test_ppo import rollout, tiny_recipe
 
     from gcnt.rl.loop import prepare
-    from gcnt.rl.ppo import _BATCH_KEYS
+    from gcnt.rl.ppo.learner import _BATCH_KEYS
 
     recipe = tiny_recipe(tmp_path)
     recipe.compile.compile = True

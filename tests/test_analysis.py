@@ -187,7 +187,7 @@ def test_variants_command(sweep: Path) -> None:
 
 def test_embed_untrained_gcnt_and_swat(tmp_path: Path) -> None:
     from gcnt.analysis.embed import structural_vectors
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
 
     kw = {"d_model": 12, "layers": 1, "ff": 16, "heads": 2}
     robots = ["walker_2_main", "walker_3_main", "hopper_3"]

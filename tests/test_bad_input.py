@@ -345,7 +345,7 @@ def test_only_losses_stop_a_run_not_diagnostics_that_may_be_nan(tmp_path):
 def test_a_nan_injected_after_a_checkpoint_stops_the_run_which_resumes_from_it(
     tmp_path, recipe_file, capsys, monkeypatch
 ):
-    from gcnt.rl.td3 import TD3
+    from gcnt.rl.td3.learner import TD3
 
     process = TD3.process
 
@@ -524,7 +524,7 @@ def test_a_nan_action_raises_naming_the_robot():
     """A NaN action is a bug of the policy, not physics: the env raises (naming the robot) rather
     than ending the episode as a blow-up would; a diverging run stops before it acts (above)."""
     from gcnt.envs.smpenv import SMPEnv
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
 
     env = SMPEnv(resolve_robots(["hopper_3", "walker_2_main"]), seed=0, num_threads=1)
     try:

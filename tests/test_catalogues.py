@@ -6,7 +6,7 @@ import shutil
 
 import pytest
 
-from gcnt.morphology.benchmarks import (
+from gcnt.morphology.catalogues import (
     Catalogue,
     DuplicateRobotError,
     UnknownRobotError,

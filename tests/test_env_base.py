@@ -27,7 +27,7 @@ from gcnt.envs import (
     robot_table,
 )
 from gcnt.envs.benchmark import get_benchmark
-from gcnt.morphology.benchmarks import smpenv_robot
+from gcnt.morphology.catalogues import smpenv_robot
 
 SLOTS = 2
 
@@ -309,11 +309,11 @@ def test_smpenv_benchmark_builds_its_env():
 
 def test_spinning_openmp_is_reported_once(monkeypatch, caplog):
     import gcnt
-    from gcnt.envs import base
+    from gcnt.envs import stepper
 
     monkeypatch.setattr(gcnt, "OPENMP_SPINS", True)
-    monkeypatch.setattr(base, "_openmp_warned", False)
-    with caplog.at_level(logging.WARNING, logger="gcnt.envs.base"):
+    monkeypatch.setattr(stepper, "_openmp_warned", False)
+    with caplog.at_level(logging.WARNING, logger="gcnt.envs.stepper"):
         for _ in range(2):
             toy_env(num_threads=2).close()
         toy_env(num_threads=1).close()
@@ -351,7 +351,7 @@ def test_partial_reset_merge_equals_torchrl_default(benchmark, monkeypatch):
     rollout (every key, every step, resets included)."""
     from torchrl.envs import EnvBase
 
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
 
     bench = get_benchmark(benchmark)
     names = ["hopper_3", "walker_7_main", "cheetah_2_front"]

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from gcnt.envs import PhysicsBlowupWarning, SMPEnv
-from gcnt.morphology.benchmarks import smpenv_robot
+from gcnt.morphology.catalogues import smpenv_robot
 
 DATA = Path(__file__).parent / "data" / "smpenv_rollout_reference.npz"
 ROBOTS = ["cheetah_7_full", "walker_2_main", "humanoid_2d_9_full", "hopper_4", "walker_7_main"]

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from gcnt.morphology.benchmarks import smpenv_robot
+from gcnt.morphology.catalogues import smpenv_robot
 
 
 def test_render_rollout_writes_mp4(tmp_path):

@@ -10,9 +10,9 @@ import torch
 from torchrl.envs.utils import check_env_specs
 
 from gcnt.envs import PhysicsBlowupWarning, RobotTooLargeError, SMPEnv
-from gcnt.envs.featurize import LimbFeaturizer
+from gcnt.envs.smpenv.featurize import LimbFeaturizer
 from gcnt.morphology import GLOBAL_TYPE_ID
-from gcnt.morphology.benchmarks import smpenv_robot
+from gcnt.morphology.catalogues import smpenv_robot
 
 MIXED = ["walker_7_main", "cheetah_3_back", "humanoid_2d_8_left_knee", "hopper_5"]
 
@@ -365,7 +365,7 @@ def test_error_in_a_physics_thread_is_raised_not_hung():
 def test_error_in_a_helper_thread_reaches_the_caller():
     import threading
 
-    from gcnt.envs.base import _StepQueue
+    from gcnt.envs.stepper import StepQueue as _StepQueue
 
     env = SMPEnv(robots(*MIXED), seed=0, num_threads=2)
     env.reset()

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from gcnt.envs.smpenv import SMPEnv
-from gcnt.envs.tasks import task_rules
-from gcnt.morphology.benchmarks import smpenv_robot
+from gcnt.envs.smpenv.rules import task_rules
+from gcnt.morphology.catalogues import smpenv_robot
 
 # robot -> (z_low, z_high) of the healthy test of the original SMPENV task code
 Z_BOUNDS = {

@@ -21,7 +21,7 @@ from gcnt.envs.benchmark import get_benchmark
 from gcnt.envs.unimal import UNIMAL_BENCHMARK, UnimalEnv
 from gcnt.envs.unimal import terrain as T
 from gcnt.envs.unimal import worlds as W
-from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.morphology.catalogues import resolve_robots
 
 WORLDS = ("ft", "incline", "mt", "obstacles")
 FALL_RATIO = {"ft": 0.5, "incline": 0.2, "mt": 0.3, "obstacles": 0.5}

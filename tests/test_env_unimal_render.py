@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.morphology.catalogues import resolve_robots
 
 
 def _no_gl(e: Exception) -> bool:

@@ -18,12 +18,13 @@ from nn_helpers import (
     table_of,
     unimal_table,
 )
+from reference_td3 import make_td3_critics
 from tensordict.nn import InteractionType, set_interaction_type
 from torchrl.modules import ProbabilisticActor
 from torchrl.modules.distributions.utils import sample_and_log_prob
 from torchrl.objectives import ClipPPOLoss, TD3Loss
 
-from gcnt.nn import MaskedNormal, make_network, make_td3_critics
+from gcnt.nn import MaskedNormal, make_network
 
 # ------------------------------------------------------------------------ MaskedNormal
 

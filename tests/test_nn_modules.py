@@ -97,12 +97,16 @@ def test_distance_bias_changes_attention():
     ).double()
     td = double(batch(table, [3], seed=0))  # walker_7
 
+    # a random projection of the features: their plain sum is constant under the final
+    # LayerNorm (its gradient is 0 up to rounding, whatever the attention does)
     def dependence():
-        """|d features[limbs 0-3] / d obs[limbs 4-6]| summed."""
+        """|d (features[limbs 0-3] · random weights) / d obs[limbs 4-6]| summed."""
         obs = td["limbs", "obs"].clone().requires_grad_()
         x = td.clone()
         x.set(("limbs", "obs"), obs)
-        net(x)["limbs", "features"][:, :4].sum().backward()
+        feats = net(x)["limbs", "features"][:, :4]
+        weights = torch.randn(feats.shape, generator=torch.Generator().manual_seed(1)).double()
+        (feats * weights).sum().backward()
         return obs.grad[:, 4:7].abs().sum()
 
     assert dependence() > 0  # attention mixes limbs

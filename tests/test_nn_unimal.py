@@ -24,6 +24,7 @@ from nn_helpers import (
 from tensordict.nn import TensorDictModule
 from torch import nn
 
+from gcnt import keys as K
 from gcnt.nn import (
     Backbone,
     GCNTConfig,
@@ -36,7 +37,6 @@ from gcnt.nn import (
     register_network,
     unregister_network,
 )
-from gcnt.nn import keys as K
 from gcnt.nn.layers import ContextAttentionLayer, HyperLinear, key_padding_bias
 from gcnt.nn.stages import limb_head_stage
 
@@ -245,9 +245,9 @@ def test_unimal_parameter_counts_match_the_original_models():
     """MetaMorph / MetaMorph* at 52 inputs: the public code's count (the paper's table is 2,560
     higher: 62 inputs). ModuMorph: the paper's table minus the modules its code builds but never
     uses (a plain embedding and decoder per network). Ratios as in the paper."""
-    from gcnt.commands import params
+    from gcnt.analysis import params as counts
 
-    rows = {(r["world"], r["method"]): r["total"] for r in params.count_table("unimal")}
+    rows = {(r["world"], r["method"]): r["total"] for r in counts.count_table("unimal")}
     worlds = {w for w, _ in rows}
     ft = next(w for w in worlds if w.lower() in ("ft", "flat"))
     mt = next(w for w in worlds if w.lower() == "mt")

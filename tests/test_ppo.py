@@ -1,7 +1,8 @@
 """PPO pipeline: training through `gcnt train` on SMPENV and UNIMAL (tiny), the KL early stop,
 the learning-rate schedule, observation statistics (frozen at evaluation, restored from a
-checkpoint), exact continuation from a checkpointed state, robot sampling and slot envs, and GAE
-with bootstrapped timeouts (by hand, float64)."""
+checkpoint), exact continuation from a checkpointed state, slot envs, and GAE with bootstrapped
+timeouts (by hand, float64). The statistics themselves are tested in tests/test_normalize.py,
+robot sampling in tests/test_robot_sampler.py, the summary over robots in tests/test_evaluate.py."""
 
 import json
 import math
@@ -15,14 +16,11 @@ from tensordict.nn import TensorDictModule
 
 from gcnt.cli import main as gcnt
 from gcnt.envs.smpenv import SMPEnv
-from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import load_recipe, recipe_from_dict
-from gcnt.rl.evaluate import summarize_robots
 from gcnt.rl.loop import prepare
-from gcnt.rl.normalize import ObsNormalizer, RewardScaler
-from gcnt.rl.ppo import PPO, NormalizedPolicy, lr_factor, make_gae
-from gcnt.rl.ppo_config import PPOConfig
-from gcnt.rl.robot_sampler import RobotDraw, RobotSampler, shared_probs
+from gcnt.rl.ppo.config import PPOConfig
+from gcnt.rl.ppo.learner import PPO, NormalizedPolicy, lr_factor, make_gae
 from gcnt.rl.run_dir import RunDir
 
 TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
@@ -185,61 +183,6 @@ def test_lr_schedule_warms_up_then_follows_the_cosine():
     assert lr_factor(3, total, PPOConfig(lr_schedule="constant", warmup_iterations=0)) == 1.0
 
 
-def test_obs_normalizer_per_slot_over_real_limbs_and_frozen_copy():
-    torch.manual_seed(0)
-    norm = ObsNormalizer(3, 2, clip=10.0)
-    obs = torch.randn(50, 3, 2, dtype=torch.float64) * torch.tensor([1.0, 5.0]) + 3.0
-    mask = torch.ones(50, 3, dtype=torch.bool)
-    mask[:, 2] = False  # nobody has a third limb
-    mask[25:, 1] = False
-    norm.update(obs[:20], mask[:20])
-    norm.update(obs[20:], mask[20:])  # two merges equal one pass over everything
-    ref0 = obs[:, 0]
-    assert torch.allclose(norm.mean[0], ref0.mean(0), atol=1e-3)
-    assert torch.allclose(norm.var[0], ref0.var(0, correction=0), rtol=1e-3)
-    assert torch.allclose(norm.mean[1], obs[:25, 1].mean(0), atol=1e-3)
-    assert torch.equal(norm.mean[2], torch.zeros(2)) and torch.equal(norm.var[2], torch.ones(2))
-    y = norm(obs.float(), mask)
-    assert (y[~mask] == 0).all() and y.abs().max() <= 10
-    wide = norm.for_limbs(5)
-    assert torch.equal(wide.mean[:3], norm.mean) and torch.equal(wide.var[3:], torch.ones(2, 2))
-
-
-def test_reward_scaling_divides_by_the_std_of_the_discounted_return():
-    s = RewardScaler(2, gamma=0.5, clip=10.0)
-    r = torch.tensor([[1.0, 1.0, 1.0], [2.0, 0.0, 2.0]])
-    done = torch.tensor([[False, True, False], [False, False, False]])
-    out = s(r, done)
-    rets = np.array([[1.0, 1.5, 1.0], [2.0, 1.0, 2.5]])
-    n0 = 1e-4
-    mean = rets.mean() * 6 / (6 + n0)
-    var = (1.0 * n0 + rets.var() * 6 + rets.mean() ** 2 * n0 * 6 / (6 + n0)) / (6 + n0)
-    assert s.mean == pytest.approx(mean) and s.var == pytest.approx(var)
-    assert torch.allclose(out, (r / math.sqrt(var + 1e-8)).float())
-    assert s.ret.tolist() == [1.0, 2.5]  # carried to the next batch (robot 0 restarted)
-
-
-def test_robot_sampler_uniform_then_inverse_episode_length():
-    s = RobotSampler(3, uniform_iterations=2, warmup_episodes=10, alpha=0.1)
-    draw = s.drawer(seed=0)
-    s.add_episodes([0] * 10 + [1] * 10, [100] * 10 + [400] * 10)
-    s.end_iteration()
-    assert np.allclose(np.asarray(s.probs), 1 / 3)  # still uniform in the first iterations
-    s.add_episodes([0, 1], [200, 400])  # past the warm-up: EMA
-    s.end_iteration()
-    ema = np.array([0.1 * 200 + 0.9 * 100, 400.0, (110 + 400) / 2])  # robot 2: mean of the others
-    w = 1000 / ema
-    assert np.allclose(np.asarray(s.probs), w / w.sum())
-    assert np.allclose(s.ema[:2], ema[:2])
-    # the env-side drawer reads the same (shared) probabilities
-    picks = draw(np.arange(20000))
-    assert np.allclose(np.bincount(picks, minlength=3) / 20000, w / w.sum(), atol=0.015)
-    # first episodes: the mean of those seen so far
-    t = RobotSampler(1, warmup_episodes=10)
-    t.add_episodes([0, 0, 0], [10, 20, 60])
-    assert t.ema[0] == pytest.approx(30.0)
-
-
 def test_slot_env_changes_robot_at_reset_and_matches_a_fresh_env():
     pool = resolve_robots(["Hopper++:train"]) + resolve_robots(["walker_2_main"])
     k = max(r.num_limbs for r in pool)
@@ -323,8 +266,7 @@ def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp
     b.algo.load_state_dict(torch.load(path, weights_only=False))
     assert b.algo.learner.iteration == 1 and b.algo.learner.lr_now() == a.algo.learner.lr_now()
     data2 = rollout(a)  # fresh episodes (a rollout starts with a reset), as after a resume
-    a.algo.scaler.ret[:] = 0.0
-    a.algo.lengths.steps[:] = 0
+    a.algo.scaler.ret[:] = 0.0  # episode lengths restart with the env (StepCounter)
     for algo in (a.algo, b.algo):
         torch.manual_seed(5)
         list(algo.process(data2.clone(), 160))
@@ -353,28 +295,6 @@ def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp
     assert torch.equal(act, ref) and torch.equal(pol.norm.mean, mean_before)
     for p in (a, b):
         p.env.close()
-
-
-def test_summarize_robots_bootstrap_ci():
-    res = {f"r{i}": {"mean": float(m)} for i, m in enumerate([1.0, 2.0, 3.0, 4.0, 10.0])}
-    s = summarize_robots(res)
-    assert s["mean"] == pytest.approx(4.0) and s["robots"] == 5
-    assert s["ci95_low"] < 4.0 < s["ci95_high"]
-    assert summarize_robots({"a": {"mean": 2.0}})["ci95_low"] == 2.0
-
-
-def test_robot_draw_pickles_as_a_view_of_the_shared_probabilities():
-    """Envs in worker processes (a multi-process collector) follow the trainer's updates."""
-    import pickle
-
-    import cloudpickle
-
-    probs = shared_probs(4)
-    for dumps in (pickle.dumps, cloudpickle.dumps):
-        d = pickle.loads(dumps(RobotDraw(probs, 3)))
-        probs[:] = [0.0, 0.0, 1.0, 0.0]
-        assert d(np.arange(5)).tolist() == [2] * 5
-        probs[:] = 0.25
 
 
 ROOT = Path(__file__).parents[1]

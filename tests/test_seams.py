@@ -14,7 +14,7 @@ from torchrl.envs import EnvBase
 
 from gcnt.envs.benchmark import Benchmark, get_benchmark, register_benchmark
 from gcnt.envs.robot_table import robot_table
-from gcnt.nn.keys import ACTION, OBS
+from gcnt.keys import ACTION, OBS
 from gcnt.recipes import RecipeError, recipe_from_dict, register_algorithm_section
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm, register_algorithm
 from gcnt.rl.evaluate import evaluate

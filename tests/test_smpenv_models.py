@@ -12,7 +12,7 @@ import pytest
 
 from gcnt.cli import main as cli_main
 from gcnt.morphology import load_robot
-from gcnt.morphology.benchmarks import (
+from gcnt.morphology.catalogues import (
     BenchmarkFileError,
     load_benchmarks,
     morphologies_dir,

@@ -9,13 +9,13 @@ import pytest
 import torch
 
 from gcnt.cli import main as gcnt
-from gcnt.nn.keys import ACTION
+from gcnt.keys import ACTION
 from gcnt.recipes import load_recipe
-from gcnt.rl import replay as rb
 from gcnt.rl.factories import make_env, train_robots
-from gcnt.rl.stacked import SeedRNG, StackedTD3Learner, clip_grad_norm_per_seed
-from gcnt.rl.td3 import TD3Learner
-from gcnt.rl.td3_loss import target_noise
+from gcnt.rl.td3 import replay as rb
+from gcnt.rl.td3.learner import TD3Learner
+from gcnt.rl.td3.loss import target_noise
+from gcnt.rl.td3.stacked import SeedRNG, StackedTD3Learner, clip_grad_norm_per_seed
 
 ROOT = Path(__file__).parents[1]
 QUICK = ROOT / "recipes/quickstart.yaml"
@@ -87,7 +87,7 @@ def _assert_same_state(a, b):
 
 @pytest.mark.parametrize("clip", [0.0, 0.1])
 def test_stacked_updates_equal_each_seeds_own_updates_float64(clip, monkeypatch):
-    import gcnt.rl.td3 as td3_module
+    import gcnt.rl.td3.learner as td3_module
 
     seeds = [0, 1, 2]
     _, learners, replay = _learners(seeds, [f"td3.max_grad_norm={clip}", "td3.policy_delay=2"])

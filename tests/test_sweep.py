@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gcnt.analysis import sweep as S
+from gcnt import sweep as S
 from gcnt.analysis.runs import Run, find_runs
 from gcnt.cli import main
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from reference_td3 import PerRobotTD0
 from tensordict import TensorDict
 
 from gcnt.cli import main as gcnt
@@ -14,7 +15,7 @@ from gcnt.recipes import load_recipe
 from gcnt.rl.factories import train_robots
 from gcnt.rl.loop import train
 from gcnt.rl.run_dir import RunDir
-from gcnt.rl.td3_loss import PerRobotTD0, masked_mean
+from gcnt.rl.td3.loss import masked_mean, td_target
 
 ROOT = Path(__file__).parents[1]
 RECIPES = sorted(
@@ -50,26 +51,35 @@ def tiny(path, run_dir, *extra, frames=None):
     return recipe
 
 
-def test_td_target_is_per_robot_mean_and_truncation_bootstraps():
+def test_training_td_target_on_a_terminated_and_a_truncated_row():
+    """The target training uses (``td_target``), float64: a truncated row bootstraps from the
+    mean over real limbs of min(Q1', Q2'); a terminated row is the reward alone; padding (limb 2)
+    never enters. torchrl's TD(0) estimator with the same per-robot value agrees."""
+    q1 = torch.tensor([[1.0, 2.0, 100.0], [4.0, 8.0, -50.0]], dtype=torch.float64).unsqueeze(-1)
+    q2 = torch.tensor([[3.0, 0.5, -100.0], [2.0, 9.0, 70.0]], dtype=torch.float64).unsqueeze(-1)
+    mask = torch.tensor([[1, 1, 0], [1, 1, 0]]).bool()
+    reward = torch.tensor([[1.0], [2.0]], dtype=torch.float64)
+    terminated = torch.tensor([[False], [True]])  # row 0: truncated (done, not terminated)
+    target = td_target(reward, terminated, (q1, q2), mask, 0.5)
+    assert target.dtype == torch.float64 and target.shape == (2, 1)
+    # row 0: min per limb (1, 0.5) -> mean 0.75; row 1: the reward alone
+    assert target.flatten().tolist() == [1.0 + 0.5 * 0.75, 2.0]
+
     est = PerRobotTD0(gamma=0.5, value_network=None)
     est.set_keys(value=("limbs", "state_action_value"))
-    q_next = torch.tensor([[1.0, 2.0, 100.0], [4.0, 8.0, 0.0]]).unsqueeze(-1)  # limb 2: padding
     td = TensorDict(
         {
-            "limbs": {"mask": torch.tensor([[1, 1, 0], [1, 1, 0]]).bool()},
+            "limbs": {"mask": mask},
             "next": {
-                "limbs": {"state_action_value": q_next},
-                "reward": torch.tensor([[1.0], [1.0]]),
+                "limbs": {"state_action_value": torch.minimum(q1, q2)},
+                "reward": reward,
                 "done": torch.tensor([[True], [True]]),
-                "terminated": torch.tensor([[False], [True]]),  # 0: truncated, 1: terminated
+                "terminated": terminated,
             },
         },
         batch_size=[2],
     )
-    target = est.value_estimate(td)
-    assert target.shape == (2, 1, 1)
-    # robot 0 truncated: bootstrapped from the mean over real limbs (1+2)/2; 1 terminated
-    assert torch.allclose(target.flatten(), torch.tensor([1.0 + 0.5 * 1.5, 1.0]))
+    assert torch.equal(est.value_estimate(td).flatten(), target.flatten())
 
 
 def test_masked_mean_is_the_batch_mean_of_per_robot_means_over_real_limbs():
@@ -133,7 +143,7 @@ def test_resume_continues_the_step_count_and_metrics(tmp_path):
     assert run.load_checkpoint()["learner"]["updates"] > state["learner"]["updates"]
     # a learning rate given on resume is the one the optimisers use from then on
     from gcnt.rl.factories import make_env, train_robots
-    from gcnt.rl.td3 import TD3Learner
+    from gcnt.rl.td3.learner import TD3Learner
 
     lower = run.load_recipe(["td3.lr=1e-5"])
     env = make_env(lower, train_robots(lower))

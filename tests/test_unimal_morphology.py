@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from gcnt.cli import main as cli_main
 from gcnt.morphology import GLOBAL_TYPE_ID, RobotFileError, load_robot, robot_from_xml
-from gcnt.morphology.benchmarks import load_benchmarks, morphologies_dir, resolve_robots
+from gcnt.morphology.catalogues import load_benchmarks, morphologies_dir, resolve_robots
 from gcnt.morphology.unimal import OPERATORS, Rng, build_mjcf, generate, make_variant, mutate
 from gcnt.morphology.unimal.catalogue import load_unimal, robot_name, split_yaml, topology
 from gcnt.morphology.unimal.mjcf import rest_state

@@ -55,7 +55,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     for module, names in (
         ("gcnt.morphology.robot", ("RobotFileError",)),
         (
-            "gcnt.morphology.benchmarks",
+            "gcnt.morphology.catalogues",
             ("UnknownRobotError", "BenchmarkFileError", "DuplicateRobotError"),
         ),
         ("gcnt.envs.robot_table", ("RobotTooLargeError",)),

@@ -137,8 +137,8 @@ class CompileConfig:
 ALGORITHM_SECTIONS: dict[str, type] = {}
 #: built-in sections, imported when first needed
 _BUILTIN_SECTIONS: dict[str, str] = {
-    "td3": "gcnt.rl.td3_config:TD3Config",
-    "ppo": "gcnt.rl.ppo_config:PPOConfig",
+    "td3": "gcnt.rl.td3.config:TD3Config",
+    "ppo": "gcnt.rl.ppo.config:PPOConfig",
 }
 
 

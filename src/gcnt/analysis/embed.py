@@ -58,9 +58,9 @@ def structural_vectors(
     import torch
     from tensordict import TensorDict
 
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt import keys as K
+    from gcnt.morphology.catalogues import resolve_robots
     from gcnt.morphology.limb_types import GLOBAL_LIMB_TYPES
-    from gcnt.nn import keys as K
     from gcnt.nn.registry import make_network
 
     if method not in STRUCTURAL_METHODS:

@@ -215,7 +215,7 @@ class Run:
 def _robot_names(specs: Sequence[str]) -> list[str]:
     if not specs:
         return []
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
 
     try:
         return list(dict.fromkeys(r.name for r in resolve_robots(list(specs))))

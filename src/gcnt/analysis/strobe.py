@@ -8,7 +8,6 @@ the whole path, and rendered headless (``MUJOCO_GL=egl``).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,14 +15,12 @@ import numpy as np
 
 from gcnt.analysis.runs import AnalysisError, Run
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 DEFAULT_ROBOT = "humanoid_2d_9_full"
 
 
 def _policy_and_env(run: Run, robot: str, seed: int):
     """The run's trained deterministic policy and a one-robot env for ``robot``."""
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
     from gcnt.rl.algorithm import get_algorithm
     from gcnt.rl.factories import make_env
     from gcnt.rl.run_dir import RunDir
@@ -76,7 +73,7 @@ def render_strobe(
 
     import mujoco
 
-    from gcnt.envs.render import _headless_gl
+    from gcnt.envs.render import headless_gl
 
     idx = np.unique(np.linspace(0, len(poses) - 1, max(1, frames)).round().astype(int))
     rmodel = copy.copy(model)
@@ -97,7 +94,7 @@ def render_strobe(
     span = float(max(hi[0] - lo[0], hi[1] - lo[1], 1.0))
     cam.distance = 1.2 * span + 2.5
     cam.azimuth, cam.elevation = 90.0, -8.0
-    _headless_gl()
+    headless_gl()
     renderer = mujoco.Renderer(rmodel, height=height, width=width, max_geom=20000)
     try:
         opt = mujoco.MjvOption()

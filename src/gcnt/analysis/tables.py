@@ -42,7 +42,7 @@ def rows_to_markdown(rows: list[dict[str, Any]]) -> str:
 
 def params_table(preset: str) -> tuple[str, list[dict[str, Any]]]:
     """(Markdown, rows) of the parameter counts at ``preset``."""
-    from gcnt.commands.params import count_table
+    from gcnt.analysis.params import count_table
 
     rows = count_table(preset)
     return rows_to_markdown(rows), rows

@@ -31,6 +31,8 @@ import mujoco
 import numpy as np
 import torch
 
+from gcnt import keys as K
+
 log = logging.getLogger(__name__)
 
 
@@ -64,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _env_round(env, td, actions: torch.Tensor, steps: int):
     t = time.perf_counter()
     for s in range(steps):
-        td.set(("limbs", "action"), actions[s % len(actions)])
+        td.set(K.ACTION, actions[s % len(actions)])
         _, td = env.step_and_maybe_reset(td)
     return time.perf_counter() - t, td
 
@@ -105,7 +107,7 @@ class _RawLoop:
 
 def run(args: argparse.Namespace) -> int:
     from gcnt.envs.benchmark import get_benchmark
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
 
     bench = get_benchmark(args.benchmark)
     specs = args.robots
@@ -121,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     world = bench.check_world(args.world)
     n = len(robots)
     gen = torch.Generator().manual_seed(args.seed)
-    shape = env.action_spec["limbs", "action"].shape
+    shape = env.action_spec[K.ACTION].shape
     actions = torch.rand((64, *shape), generator=gen) * 2 - 1
     raw = _RawLoop(env, args.seed)
 
@@ -137,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         env_rates.append(n * args.steps / dt)
         raw_rates.append(n * args.steps / raw.round(args.steps))
     hfield_share = None
-    if hfield_start is not None and env.observation_spec.get("hfield", None) is not None:
+    if hfield_start is not None and env.observation_spec.get(K.HFIELD, None) is not None:
         hfield_share = (env.hfield_seconds - hfield_start) / env_s
     env.close()
     used = env.thread_use

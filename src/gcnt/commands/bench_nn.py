@@ -22,9 +22,9 @@ import time
 import torch
 from tensordict import TensorDict
 
-from gcnt.commands.params import ALGORITHM, counting_table, network_kwargs, setup_of
+from gcnt import keys as K
+from gcnt.analysis.params import ALGORITHM, counting_table, network_kwargs, setup_of
 from gcnt.nn import count_parameters, make_network
-from gcnt.nn import keys as K
 
 #: GCNT and the Transformer it is built on, per benchmark
 BASE = {"smpenv": "amorpheus", "unimal": "metamorph_star"}
@@ -60,7 +60,7 @@ def make_batch(
     b = num_robots * per_robot
     td = TensorDict(
         {
-            "morph_id": torch.arange(num_robots).repeat_interleave(per_robot),
+            K.MORPH_ID: torch.arange(num_robots).repeat_interleave(per_robot),
             "limbs": TensorDict(
                 {
                     "obs": torch.randn(b, k, obs_dim, generator=g),

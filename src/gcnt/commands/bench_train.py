@@ -47,9 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def bare_update_rate(recipe, n_updates: int) -> float:
     """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it."""
-    from gcnt.rl import replay as rb
     from gcnt.rl.factories import make_env, train_robots
-    from gcnt.rl.td3 import TD3Learner
+    from gcnt.rl.td3 import replay as rb
+    from gcnt.rl.td3.learner import TD3Learner
 
     c = recipe.td3
     robots = train_robots(recipe)
@@ -72,8 +72,8 @@ def bare_update_rate(recipe, n_updates: int) -> float:
 def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
     """ms per mixed mini-batch (batch_size of every robot): torchrl's per-robot
     ReplayBufferEnsemble (the previous layout) against the one [robots, capacity] storage."""
-    from gcnt.rl import replay as rb
     from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import replay as rb
 
     c = recipe.td3
     robots = train_robots(recipe)
@@ -82,11 +82,11 @@ def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
     env.close()
     one = rb.RobotReplay(len(robots), capacity, c.batch_size)
     one.extend(data)
-    ensemble = rb.make_ensemble(len(robots), capacity, c.batch_size)
-    rb.ensemble_store(ensemble, data)
+    ensemble = make_ensemble(len(robots), capacity, c.batch_size)
+    ensemble_store(ensemble, data)
     out = {}
     for name, sample in (
-        ("ensemble", lambda: rb.ensemble_sample_mixed(ensemble)),
+        ("ensemble", lambda: ensemble_sample_mixed(ensemble)),
         ("one_storage", one.sample_mixed),
     ):
         sample()
@@ -152,12 +152,12 @@ def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
     stacked (:class:`StackedTD3Learner`, the same batch and noise for every seed)."""
     import torch
 
-    from gcnt.nn.keys import ACTION
-    from gcnt.rl import replay as rb
+    from gcnt.keys import ACTION
     from gcnt.rl.factories import make_env, train_robots
-    from gcnt.rl.stacked import StackedTD3Learner
-    from gcnt.rl.td3 import TD3Learner
-    from gcnt.rl.td3_loss import target_noise
+    from gcnt.rl.td3 import replay as rb
+    from gcnt.rl.td3.learner import TD3Learner
+    from gcnt.rl.td3.loss import target_noise
+    from gcnt.rl.td3.stacked import StackedTD3Learner
 
     c = recipe.td3
     robots = train_robots(recipe)
@@ -346,3 +346,36 @@ def run_ppo(args: argparse.Namespace, recipe) -> int:
         )
         print(f"ratio (end-to-end ÷ bare env steps/s): {out['ratio']:.3f}")
     return 0
+
+
+# ------------------------------------------------------------ the torchrl baseline of the replay
+# torchrl's per-robot buffers routed by ``morph_id``, the layout RobotReplay is measured against
+# here and checked against in the tests (same stored rows, same loss).
+
+
+def make_ensemble(num_robots: int, capacity: int, batch_size: int, device="cpu"):
+    """Per-robot torchrl buffers (a ``ReplayBufferEnsemble``) routed by ``morph_id``: what
+    :class:`~gcnt.rl.td3.replay.RobotReplay` is measured against."""
+    from torchrl.data import LazyTensorStorage, ReplayBuffer, ReplayBufferEnsemble
+
+    from gcnt.keys import MORPH_ID
+
+    buffers = [
+        ReplayBuffer(storage=LazyTensorStorage(capacity, device=device), batch_size=batch_size)
+        for _ in range(num_robots)
+    ]
+    return ReplayBufferEnsemble(
+        *buffers, routing_key=MORPH_ID, sample_from_all=True, batch_size=batch_size * num_robots
+    )
+
+
+def ensemble_store(replay, data) -> int:
+    from gcnt.rl.td3 import replay as rb
+
+    flat = data.select(*rb.STORED_KEYS).reshape(-1)
+    replay.extend(flat)
+    return flat.numel()
+
+
+def ensemble_sample_mixed(replay):
+    return replay.sample().exclude("index").reshape(-1)

@@ -16,7 +16,7 @@ import logging
 import sys
 from pathlib import Path
 
-from gcnt.morphology.benchmarks import (
+from gcnt.morphology.catalogues import (
     catalogue_names,
     get_catalogue,
     load_benchmarks,

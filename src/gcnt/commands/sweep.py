@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.items:
         log.error("give recipe files or a sweep directory (see gcnt sweep --help)")
         return 2
-    from gcnt.analysis.sweep import (
+    from gcnt.sweep import (
         MANIFEST,
         ClusterOptions,
         Manifest,

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_seeds(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
-    from gcnt.rl.stacked_loop import parse_seeds, seed_recipes, train_seeds
+    from gcnt.rl.td3.stacked_loop import parse_seeds, seed_recipes, train_seeds
 
     if args.resume:
         raise RecipeError(

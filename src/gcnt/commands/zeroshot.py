@@ -33,8 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _evaluate(runs, episodes: int, force: bool) -> int:
     import os
 
-    from gcnt.analysis.sweep import gcnt_command, pinned_env
     from gcnt.analysis.zeroshot import seed_score
+    from gcnt.sweep import gcnt_command, pinned_env
 
     failures = 0
     for r in runs:

@@ -4,7 +4,8 @@
 :class:`Featurizer` and :class:`TaskRules` (SMPENV: :class:`SMPEnv`).
 """
 
-from gcnt.envs.base import BatchedMujocoEnv, Featurizer, PhysicsBlowupWarning, TaskRules
+from gcnt.envs.base import BatchedMujocoEnv, PhysicsBlowupWarning
+from gcnt.envs.plugins import Featurizer, TaskRules
 from gcnt.envs.robot_table import STATIC_KEYS, RobotTooLargeError, robot_table
 from gcnt.envs.smpenv import SMPEnv
 

@@ -1,42 +1,15 @@
 """One batched TorchRL env over MuJoCo for any benchmark: N robots in lockstep, padded to K limbs.
 
-A benchmark plugs in two things; everything else (threads, partial resets, blow-ups, seeding,
-specs, the output TensorDict, rendering hooks) is :class:`BatchedMujocoEnv`'s:
-
-* a :class:`Featurizer`: the per-limb observation (width F), gathered from each sub-env's
-  ``MjData`` in the physics threads and computed for all sub-envs at once with whole-array numpy;
-  optionally extra root outputs (e.g. a height map ``hfield`` [N, D]) and a static per-limb
-  context (width C) that goes into the robot table as ``limbs/context``;
-* :class:`TaskRules`, one object per sub-env: its start state (pose, reset noise, per-episode
-  world edits), and its reward and termination after each control step (run in the physics
-  threads).
-
-Output per step (batch [N], limbs padded to K, A action slots per limb)::
-
-    morph_id            [N]        int64    index into the run's robot table
-    limbs/obs           [N,K,F]    float32  the featuriser's per-limb observation
-    limbs/mask          [N,K]      bool     real limb
-    limbs/type          [N,K]      int64    global limb-type id
-    limbs/action_mask   [N,K,A]    bool     a motor drives this slot
-    limbs/context       [N,K,C]    float32  only if the featuriser declares a context
-    graph/adj           [N,K,K]    bool
-    graph/dist          [N,K,K]    uint8
-    graph/wl            [N,W]      float32
-    <root outputs>      [N,D]      float32  only those the featuriser declares (e.g. hfield)
-    reward, done, terminated, truncated   [N,1]
-
-and the action ``limbs/action`` [N,K,A] in [-1, 1]: slot ``a`` of limb ``l`` drives the motor of
-the joint that ``Robot.action_slots(l)`` puts in slot ``a``. Actions on slots without a motor
-(torso, padding, missing joints) are ignored, even NaN. The time limit is a truncation, not a
-termination.
+A benchmark plugs in a :class:`~gcnt.envs.plugins.Featurizer` and
+:class:`~gcnt.envs.plugins.TaskRules` (:mod:`gcnt.envs.plugins`); everything else (threads,
+partial resets, blow-ups, seeding, specs, the output TensorDict, rendering hooks) is
+:class:`BatchedMujocoEnv`'s. Its output per step and its action are the TensorDict contract
+written out once in :mod:`gcnt.keys`. Actions on slots without a motor (torso, padding, missing
+joints) are ignored, even NaN. The time limit is a truncation, not a termination.
 
 Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel`` unless the rules
-edit the model per episode). A step runs on ``num_threads`` threads (``mj_step`` releases the
-GIL): each thread pulls sub-envs from a shared queue, most expensive first (by a running average
-of their physics time, so that the threads finish together), steps them, refreshes the kinematics
-the featuriser needs, copies the rows the observation needs, and applies the task rules (while one
-thread does this Python work, the others are in the physics); then one vectorised featurisation
-covers all sub-envs. Nothing loops over limbs in Python.
+edit the model per episode); the physics threads and their tuning are in
+:mod:`gcnt.envs.stepper`. Nothing loops over limbs in Python.
 
 Blow-ups: a sub-env whose observation turns non-finite, or on which MuJoCo raises one of its
 bad-qpos/qvel/qacc warnings (MuJoCo then resets that ``MjData`` by itself), ends its episode with
@@ -57,14 +30,9 @@ from __future__ import annotations
 
 import copy
 import logging
-import os
 import threading
-import time
 import warnings
-from abc import ABC, abstractmethod
-from collections import Counter, deque
-from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -74,34 +42,16 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-import gcnt
+from gcnt import keys as K
+from gcnt.envs.plugins import FeaturizerFactory, RulesFactory, TaskRules
 from gcnt.envs.robot_table import RobotTooLargeError, robot_table
+from gcnt.envs.stepper import ThreadedPhysics, cost_guess
 from gcnt.morphology import GLOBAL_LIMB_TYPES, Robot
 
 log = logging.getLogger(__name__)
 
-_BLOWUP_WARNINGS = np.array(
-    [
-        int(mujoco.mjtWarning.mjWARN_BADQPOS),
-        int(mujoco.mjtWarning.mjWARN_BADQVEL),
-        int(mujoco.mjtWarning.mjWARN_BADQACC),
-    ]
-)
 #: How MuJoCo's messages for the warnings above begin.
 _BLOWUP_MESSAGE = "Nan, Inf or huge value in Q"
-
-# num_threads=None: see BatchedMujocoEnv._threads_now
-_TUNE_PERIOD = 100
-_TUNE_MAX_PERIOD = 1600
-_TUNE_PROBE = 8
-
-#: MuJoCo functions run on a sub-env after each step and reset, before the featuriser gathers:
-#: positions, orientations and body velocities (``cvel``) of the current ``qpos``/``qvel``.
-DEFAULT_KINEMATICS: tuple[Callable[[mujoco.MjModel, mujoco.MjData], None], ...] = (
-    mujoco.mj_kinematics,
-    mujoco.mj_comPos,
-    mujoco.mj_comVel,
-)
 
 
 class PhysicsBlowupWarning(RuntimeWarning):
@@ -137,106 +87,7 @@ def quiet_mujoco_instability_messages() -> None:
             _quiet_installed = True
 
 
-# --------------------------------------------------------------------------- plug-in interfaces
-
-
-class Featurizer(ABC):
-    """The per-limb observation of a fixed list of sub-envs, padded to K limbs.
-
-    Built once per env as ``featurizer(robots, models, k)`` (one robot and MjModel per sub-env).
-    The env calls, for sub-env ``j``, after :attr:`kinematics` ran on its MjData (in a physics
-    thread, so touch only row ``j`` of your buffers): the copy pairs of :meth:`bind` if it gave
-    any, else :meth:`gather`; then, on the caller's thread, :meth:`compute` (and
-    :meth:`compute_root`) for all sub-envs or a subset ``rows``.
-    """
-
-    #: per-limb observation width F
-    obs_dim: int = 0
-    #: width C of the static per-limb context (0: none; see :meth:`limb_context`)
-    context_dim: int = 0
-    #: MuJoCo functions ``f(model, data)`` the env runs on a sub-env before gathering
-    kinematics: tuple[Callable[[mujoco.MjModel, mujoco.MjData], None], ...] = DEFAULT_KINEMATICS
-    #: the env's helper physics threads (set by the env; None with one thread). They are idle
-    #: while :meth:`compute` and :meth:`compute_root` run, so a featuriser may hand them part of
-    #: a batch (numpy releases the GIL inside large array operations). A task they have not
-    #: started yet (``Future.cancel()`` succeeds) is the caller's to run.
-    pool: ThreadPoolExecutor | None = None
-
-    @property
-    def root_outputs(self) -> Mapping[str, int]:
-        """Extra float32 outputs at the root of the TensorDict, name -> width D ([N, D] each)."""
-        return {}
-
-    def limb_context(self, robot: Robot, model: mujoco.MjModel) -> np.ndarray:
-        """Static description of each limb of ``robot``, [robot.num_limbs, C] (C > 0 only)."""
-        raise NotImplementedError(
-            f"{type(self).__name__} declares context_dim={self.context_dim} but no limb_context"
-        )
-
-    def bind(self, j: int, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]] | None:
-        """Optional fast path of :meth:`gather`: ``(buffer view, MjData view)`` pairs that the env
-        copies with ``dst[...] = src`` (MjData arrays never move). None: call :meth:`gather`."""
-        return None
-
-    @abstractmethod
-    def gather(self, j: int, data: mujoco.MjData) -> None:
-        """Copy what sub-env ``j``'s observation needs out of its MjData (kinematics current)."""
-
-    @abstractmethod
-    def compute(self, rows: np.ndarray | None = None) -> np.ndarray:
-        """Observations float32 [n, K, F] of the gathered sub-envs (``rows``: a subset, in order).
-        Padded limbs must come out as zeros. The env copies the result at once, so a featuriser
-        may return the same buffer every call."""
-
-    def compute_root(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """The :attr:`root_outputs` of the gathered sub-envs, float32 [n, D] each (copied by the
-        env at once, like :meth:`compute`'s result)."""
-        return {}
-
-
-class TaskRules(ABC):
-    """Start state, reward and termination of one sub-env (one object per sub-env).
-
-    Built as ``rules(robot, model, dt)`` with the sub-env's robot, its MjModel and the control
-    period ``dt`` (frame_skip × timestep). The object may keep per-episode state (e.g. the last
-    x position for a velocity reward): it serves one sub-env only.
-    """
-
-    #: True if :meth:`reset` edits the MjModel (e.g. terrain per episode): then every sub-env gets
-    #: a private MjModel instead of sharing one per robot
-    edits_model: bool = False
-
-    @abstractmethod
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
-        """Put ``data``, just reset to the model's defaults (``mj_resetData``), into a start
-        state: pose, reset noise, per-episode world edits. Runs on the caller's thread, sub-envs
-        in index order, so that draws from ``rng`` are reproducible."""
-
-    @abstractmethod
-    def begin(self, data: mujoco.MjData) -> None:
-        """The state in ``data`` is where the next step's reward is measured from (called after
-        :meth:`reset` and after ``set_state``)."""
-
-    @abstractmethod
-    def step(self, data: mujoco.MjData, action_sq: float) -> tuple[float, bool]:
-        """After a control step: ``(reward, terminated)``. ``action_sq`` is Σa² of the clipped
-        actions on the sub-env's motors. Runs in a physics thread: touch only this sub-env."""
-
-    def sync_render(self, model: mujoco.MjModel, renderer: mujoco.Renderer | None) -> None:
-        """Copy this sub-env's per-episode model edits into a renderer's private model copy (and
-        upload them to its GPU context, e.g. ``mjr_uploadHField``). Default: nothing to copy."""
-        return None
-
-
-FeaturizerFactory = Callable[[Sequence[Robot], Sequence[mujoco.MjModel], int], Featurizer]
-RulesFactory = Callable[[Robot, mujoco.MjModel, float], TaskRules]
-
-
 # --------------------------------------------------------------------------- internals
-
-
-def _median(values) -> float:
-    return float(np.median(np.fromiter(values, float)))
 
 
 @dataclass
@@ -254,65 +105,6 @@ class _Sim:
     # (destination, source) views that copy what the observation needs out of the MjData;
     # None: use Featurizer.gather
     copies: list[tuple[np.ndarray, np.ndarray]] | None = None
-
-
-class _StepQueue:
-    """The sub-envs of one step, handed out in order to the threads; the thread that finishes
-    the last one (or fails) wakes the caller of :meth:`wait`."""
-
-    __slots__ = ("_done", "_error", "_finished", "_items", "_lock", "_next", "_total")
-
-    def __init__(self, items: list[int]):
-        self._items, self._total = items, len(items)
-        self._next = self._finished = 0
-        self._lock = threading.Lock()
-        self._done = threading.Event()
-        self._error: BaseException | None = None
-        if not items:
-            self._done.set()
-
-    def take(self, limit: int) -> int:
-        """The next sub-env if its queue position is below ``limit``, else -1."""
-        with self._lock:
-            j = self._next
-            if j >= limit or self._error is not None:
-                return -1
-            self._next = j + 1
-        return self._items[j]
-
-    def finish(self) -> None:
-        with self._lock:
-            self._finished += 1
-            if self._finished == self._total:
-                self._done.set()
-
-    def fail(self, error: BaseException) -> None:
-        with self._lock:
-            self._error = error
-        self._done.set()
-
-    def wait(self) -> None:
-        """Return when every sub-env is done; re-raise a helper thread's error."""
-        self._done.wait()
-        if self._error is not None:
-            raise self._error
-
-
-_openmp_warned = False
-
-
-def _warn_if_openmp_spins() -> None:
-    """Log once per process when torch's OpenMP workers spin (see ``gcnt.OPENMP_SPINS``): they
-    take the cores the physics threads need, which can make a step several times slower."""
-    global _openmp_warned
-    if _openmp_warned or not gcnt.OPENMP_SPINS:
-        return
-    _openmp_warned = True
-    log.warning(
-        "torch was imported before gcnt: torch's OpenMP threads spin long after each op on the "
-        "cores the physics threads use (env steps can be several times slower); import gcnt "
-        "first, or set GOMP_SPINCOUNT=10000 before starting Python"
-    )
 
 
 def _robot_key(r: Robot) -> tuple[str, str]:
@@ -333,17 +125,10 @@ def _actuator_slots(r: Robot, model: mujoco.MjModel) -> tuple[np.ndarray, np.nda
     return limb_of, slot_of
 
 
-def _cost_guess(model: mujoco.MjModel, frame_skip: int) -> float:
-    """A first guess of a sub-env's physics time per control step (seconds), to order the work
-    queue until measured times replace it."""
-    evals = 4 if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else 1
-    return frame_skip * evals * model.nv * 1e-6
-
-
 # --------------------------------------------------------------------------- the env
 
 
-class BatchedMujocoEnv(EnvBase):
+class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
     """N robots in lockstep, batch [N]; the same robot may appear several times.
 
     Args:
@@ -465,7 +250,7 @@ class BatchedMujocoEnv(EnvBase):
                 for i, r in enumerate(self.distinct_robots)
             ]
         self.table = robot_table(self.distinct_robots, max_limbs, a_slots, context=context)
-        self.max_limbs = k = int(self.table["limbs", "mask"].shape[1])
+        self.max_limbs = k = int(self.table[K.MASK].shape[1])
 
         # Sub-envs (their control layout and the featuriser's copies: see _layout).
         self._sims: list[_Sim] = []
@@ -487,7 +272,7 @@ class BatchedMujocoEnv(EnvBase):
         self._term = np.zeros(n, bool)
         self._sq = np.zeros(n)
         self._obs = np.zeros((n, k, f.obs_dim), np.float32)
-        reserved = {"morph_id", "limbs", "graph", "reward", "done", "terminated", "truncated"}
+        reserved = {K.MORPH_ID, "limbs", "graph", K.REWARD, K.DONE, K.TERMINATED, K.TRUNCATED}
         clash = sorted(set(f.root_outputs) & reserved)
         if clash or any(k.startswith("_") for k in f.root_outputs):
             raise ValueError(
@@ -500,10 +285,10 @@ class BatchedMujocoEnv(EnvBase):
         self._limb_batch = torch.Size([n, k])
 
         # Static per-sub-env tensors (the graph half of the contract), filled by _layout.
-        keys = [("limbs", "mask"), ("limbs", "type"), ("limbs", "action_mask")]
+        keys = [K.MASK, K.TYPE, K.ACTION_MASK]
         if context is not None:
-            keys.append(("limbs", "context"))
-        keys += [("graph", "adj"), ("graph", "dist"), ("graph", "wl")]
+            keys.append(K.CONTEXT)
+        keys += [K.ADJ, K.DIST, K.WL]
         self._static = dict.fromkeys(keys)
         self._layout()
 
@@ -540,40 +325,10 @@ class BatchedMujocoEnv(EnvBase):
                     f"at most {k} (raise max_limbs)"
                 )
 
-    def _setup_threads(self, num_threads: int | None) -> None:
-        """Threads: all of them pull sub-envs from one queue, the slowest first."""
-        n = len(self._sims)
-        self._auto = num_threads is None
-        if num_threads is None:
-            try:
-                num_threads = len(os.sched_getaffinity(0))
-            except AttributeError:  # not on Linux
-                num_threads = os.cpu_count() or 1
-        self.num_threads = max(1, min(int(num_threads), n))
-        self._auto = self._auto and self.num_threads > 1
-        if self.num_threads > 1:
-            _warn_if_openmp_spins()
-        self._use, self._tick = self.num_threads, 0
-        self._period = _TUNE_PERIOD
-        self._probe_at = _TUNE_PERIOD
-        self._times = {c: deque(maxlen=_TUNE_PROBE) for c in {1, self.num_threads}}
-        #: how many steps ran with how many physics threads
-        self.thread_use: Counter[int] = Counter()
-        # Python lists: the hot loop reads and writes single items, which numpy makes slow.
-        self._cost = [_cost_guess(s.model, self.frame_skip) for s in self._sims]
-        self._order = sorted(range(n), key=lambda i: -self._cost[i])
-        self._reserve = max(1, n // 12)  # sub-envs the helpers leave to the calling thread
-        self._pool = (
-            ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix=self.name.lower())
-            if self.num_threads > 1
-            else None
-        )
-        self._featurizer.pool = self._pool
-
     # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
         n, k, a = self.batch_size[0], self.max_limbs, self.action_slots
-        w = int(self.table["graph", "wl"].shape[-1])
+        w = int(self.table[K.WL].shape[-1])
         dev = self.device
         bool_spec = lambda *shape: Categorical(2, shape=shape, dtype=torch.bool, device=dev)  # noqa: E731
         f = self._featurizer
@@ -585,7 +340,7 @@ class BatchedMujocoEnv(EnvBase):
             ),
             "action_mask": bool_spec(n, k, a),
         }
-        if ("limbs", "context") in self._static:
+        if K.CONTEXT in self._static:
             c = f.context_dim
             limbs["context"] = Unbounded(shape=(n, k, c), dtype=torch.float32, device=dev)
         root = {
@@ -650,87 +405,6 @@ class BatchedMujocoEnv(EnvBase):
                 else:
                     self._root_out[key][rows] = v
 
-    def _work(self, queue: _StepQueue, ctrl: np.ndarray, limit: int) -> None:
-        """One thread's share of a step: take sub-envs from ``queue`` (up to position ``limit``),
-        step them, copy out what the observation needs, and apply the task rules (Python work
-        that overlaps with the other threads' physics)."""
-        try:
-            fs, clock, cost, blown = self.frame_skip, time.perf_counter, self._cost, self._blown
-            sims, gather, kin = self._sims, self._featurizer.gather, self._kinematics
-            reward, term, sq = self._reward, self._term, self._sq
-            qpos_w, qvel_w, qacc_w = (int(w) for w in _BLOWUP_WARNINGS)
-            step = mujoco.mj_step
-            take, finish = queue.take, queue.finish
-            while (i := take(limit)) >= 0:
-                s = sims[i]
-                m, d = s.model, s.data
-                s.ctrl[:] = ctrl[s.ctrl_slice]
-                t = clock()
-                step(m, d, fs)
-                cost[i] += 0.2 * (clock() - t - cost[i])
-                w = s.warn
-                if w[qpos_w] or w[qvel_w] or w[qacc_w]:
-                    blown[i] = True
-                    w[_BLOWUP_WARNINGS] = 0
-                for fn in kin:
-                    fn(m, d)
-                if s.copies is not None:
-                    for dst, src in s.copies:
-                        dst[...] = src
-                else:
-                    gather(i, d)
-                reward[i], term[i] = s.rules.step(d, sq[i])
-                finish()
-        except BaseException as e:
-            queue.fail(e)
-            raise
-
-    def _threads_now(self) -> int:
-        """How many threads step the physics this time (see ``num_threads`` in the class doc).
-
-        With ``num_threads=None``: now and then, step ``_TUNE_PROBE`` times with the other setting
-        (1 thread or all), and switch if its median physics time was 5% lower. The pause between
-        probes doubles (up to ``_TUNE_MAX_PERIOD`` steps) while the choice holds.
-        """
-        if not self._auto:
-            return self.num_threads
-        self._tick += 1
-        other = 1 if self._use == self.num_threads else self.num_threads
-        left = self._probe_at - self._tick
-        if 0 <= left < _TUNE_PROBE:
-            return other  # probing
-        if left < 0:  # a probe just ended
-            mine, theirs = self._times[self._use], self._times[other]
-            if theirs and mine and _median(theirs) < 0.95 * _median(mine):
-                self._use, self._period = other, _TUNE_PERIOD
-            else:
-                self._period = min(2 * self._period, _TUNE_MAX_PERIOD)
-            self._probe_at = self._tick + self._period
-        return self._use
-
-    def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
-        """Step and featurise every (active) sub-env on all threads."""
-        items = self._order if active is None else [i for i in self._order if active[i]]
-        queue = _StepQueue(items)
-        threads = self._threads_now()
-        t0 = time.perf_counter()
-        if threads > 1 and len(items) > 1:
-            # Helpers leave the cheapest few sub-envs (queued last) to this thread, so that it
-            # is usually the one to finish and need not wait to be woken up; and it never waits
-            # for a helper that has not started (under CPU contention it just does all the work).
-            limit = len(items) - self._reserve
-            for _ in range(threads - 1):
-                self._pool.submit(self._work, queue, ctrl, limit)
-        self._work(queue, ctrl, len(items))
-        queue.wait()
-        if self._auto:
-            self._times[threads].append(time.perf_counter() - t0)
-        self.thread_use[threads] += 1
-        # One vectorised featurisation of all sub-envs (its cost is per numpy call, not per row).
-        self._featurize()
-        cost = self._cost
-        self._order = sorted(range(len(cost)), key=cost.__getitem__, reverse=True)
-
     # ------------------------------------------------------------------ output
     def _output(
         self, reward: np.ndarray | None, terminated: np.ndarray, truncated: np.ndarray
@@ -757,7 +431,7 @@ class BatchedMujocoEnv(EnvBase):
         for (group, key), v in st.items():
             (limbs if group == "limbs" else graph)[key] = v.clone()
         out = {
-            "morph_id": self._morph_id_dev.clone(),
+            K.MORPH_ID: self._morph_id_dev.clone(),
             "limbs": new(limbs, batch_size=self._limb_batch, device=dev),
             "graph": new(graph, batch_size=self.batch_size, device=dev),
             **extra,
@@ -828,7 +502,7 @@ class BatchedMujocoEnv(EnvBase):
     # ------------------------------------------------------------------ step
     def _actions(self, tensordict: TensorDictBase) -> np.ndarray:
         """The action as float64 [N, K, A], clipped to [-1, 1], zero on slots without a motor."""
-        a = tensordict.get(("limbs", "action")).detach()
+        a = tensordict.get(K.ACTION).detach()
         if a.device.type != "cpu":
             a = a.cpu()
         a = a.numpy().reshape(self.batch_size[0], self.max_limbs, self.action_slots)
@@ -962,7 +636,7 @@ class BatchedMujocoEnv(EnvBase):
                 i, r, model, data, rules, slice(0, 0), data.ctrl, data.warning.number
             )
             self.local_ids[i] = self.morph_ids[i] = p
-            self._cost[i] = _cost_guess(model, self.frame_skip)
+            self._cost[i] = cost_guess(model, self.frame_skip)
             changed = True
         if changed:
             self._relayout()
@@ -1001,7 +675,7 @@ class BatchedMujocoEnv(EnvBase):
         local = self.local_ids
         self._static = {key: self.table[key][local].to(self.device) for key in self._static}
         self._morph_id_dev = self.morph_ids.to(self.device)
-        self._no_motor = ~self.table["limbs", "action_mask"][local].numpy()
+        self._no_motor = ~self.table[K.ACTION_MASK][local].numpy()
 
     # ------------------------------------------------------------------ public helpers
     def close(self, *, raise_if_closed: bool = True) -> None:

@@ -31,7 +31,7 @@ class Benchmark:
 
     #: registry name, used in recipes as ``env.benchmark``
     name: str
-    #: the morphology catalogue its robot names resolve in (``gcnt.morphology.benchmarks``)
+    #: the morphology catalogue its robot names resolve in (``gcnt.morphology.catalogues``)
     catalogue: str
     #: builds the batched env (see :data:`EnvFactory`)
     make_env: EnvFactory

@@ -1,9 +1,9 @@
 """Render a rollout of any benchmark's env to an mp4, headless (MuJoCo's EGL backend), off the hot path.
 
-MuJoCo picks its OpenGL backend when ``mujoco`` is first imported, from ``MUJOCO_GL``; the Makefile
-exports ``MUJOCO_GL=egl``. This module sets ``MUJOCO_GL=egl`` if it is unset, and if ``mujoco`` was
-already imported with the default GLFW backend on a machine without a display (``$DISPLAY`` unset),
-it switches MuJoCo's classic GL context to EGL before creating a renderer.
+MuJoCo picks its OpenGL backend when ``mujoco`` is first imported, from ``MUJOCO_GL``, which
+``import gcnt`` sets to ``egl`` unless it is set already. If ``mujoco`` was imported before gcnt
+with the default GLFW backend on a machine without a display (``$DISPLAY`` unset), this module
+switches MuJoCo's classic GL context to EGL before creating a renderer (:func:`headless_gl`).
 """
 
 from __future__ import annotations
@@ -11,18 +11,15 @@ from __future__ import annotations
 import copy
 import logging
 import os
+from collections.abc import Callable
+from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDictBase
 
-from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from tensordict import TensorDictBase  # noqa: E402
-
-from gcnt.morphology import Robot  # noqa: E402
+from gcnt.morphology import Robot
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +27,7 @@ log = logging.getLogger(__name__)
 MAX_FPS = 60
 
 
-def _headless_gl() -> None:
+def headless_gl() -> None:
     """Use EGL if MuJoCo chose GLFW but there is no display to open a window on."""
     if os.environ.get("DISPLAY") or os.environ.get("MUJOCO_GL", "").lower() not in ("", "egl"):
         return
@@ -93,7 +90,7 @@ def render_rollout(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
-    _headless_gl()
+    headless_gl()
     renderer = mujoco.Renderer(rmodel, height=height, width=width)
     try:
         with imageio.get_writer(path, fps=1.0 / (dt * every)) as writer, torch.no_grad():

@@ -27,22 +27,23 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from gcnt import keys as K
 from gcnt.morphology import DIST_PAD, Robot
 
 #: Keys a policy may need from the table (``limbs/context`` only where the benchmark has one); the
 #: env emits the contract's subset of them.
 STATIC_KEYS: tuple[tuple[str, str], ...] = (
-    ("limbs", "mask"),
-    ("limbs", "type"),
-    ("limbs", "action_mask"),
-    ("limbs", "context"),
-    ("graph", "adj"),
-    ("graph", "dist"),
-    ("graph", "wl"),
-    ("graph", "parent"),
-    ("graph", "traversal"),
-    ("graph", "ppr"),
-    ("graph", "laplacian"),
+    K.MASK,
+    K.TYPE,
+    K.ACTION_MASK,
+    K.CONTEXT,
+    K.ADJ,
+    K.DIST,
+    K.WL,
+    K.PARENT,
+    K.TRAVERSAL,
+    K.PPR,
+    K.LAPLACIAN,
 )
 
 

@@ -2,7 +2,7 @@
 
 from typing import Any
 
-from gcnt.morphology.benchmarks import (
+from gcnt.morphology.catalogues import (
     BenchmarkFileError,
     Catalogue,
     DuplicateRobotError,
@@ -50,7 +50,7 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # BENCHMARKS is read from the catalogues' split files on first access, not at import.
     if name == "BENCHMARKS":
-        from gcnt.morphology.benchmarks import load_benchmarks
+        from gcnt.morphology.catalogues import load_benchmarks
 
         return load_benchmarks()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

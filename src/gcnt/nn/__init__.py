@@ -28,7 +28,6 @@ from gcnt.nn.registry import (
     count_parameters,
     make_config,
     make_network,
-    make_td3_critics,
     register_network,
     unregister_network,
 )
@@ -58,7 +57,6 @@ __all__ = [
     "limb_mean",
     "make_config",
     "make_network",
-    "make_td3_critics",
     "register_network",
     "unregister_network",
 ]

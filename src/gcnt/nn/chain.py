@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 
-from gcnt.nn import keys as K
+from gcnt import keys as K
 from gcnt.nn.graph_lookup import GraphLookup
 from gcnt.nn.heads import final_keys, probabilistic_actor, role_output
 from gcnt.nn.stages import HFIELD_WIDTH, hfield_stage, input_stage

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from tensordict import TensorDictBase
 
-from gcnt.nn import keys as K
+from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import GCNTConfig
 from gcnt.nn.stages import (

@@ -15,13 +15,13 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
+from gcnt import keys as K
 from gcnt.envs.robot_table import STATIC_KEYS, RobotTooLargeError
-from gcnt.nn import keys as K
 
 _BUFFER_PREFIX = "table_"
 
 
-def _buffer_name(key: tuple[str, str]) -> str:
+def buffer_name(key: tuple[str, str]) -> str:
     return _BUFFER_PREFIX + "__".join(key)
 
 
@@ -100,11 +100,11 @@ class GraphLookup(TensorDictModuleBase):
         device = self._device()
         for key in self.keys:
             value = table.get(key).to(device)
-            old = getattr(self, _buffer_name(key), None)
+            old = getattr(self, buffer_name(key), None)
             if old is not None and old.is_floating_point() and value.is_floating_point():
                 value = value.to(old.dtype)  # keep a .double() / .half() of the module
             # non-persistent: the table is not part of the state dict
-            self.register_buffer(_buffer_name(key), value, persistent=False)
+            self.register_buffer(buffer_name(key), value, persistent=False)
         self.robot_names = tuple(robot_names) if robot_names is not None else None
         self.num_robots = int(mask.shape[0])
         self.num_limbs = int(mask.shape[-1])
@@ -119,7 +119,7 @@ class GraphLookup(TensorDictModuleBase):
         """The current table (only the keys this lookup serves)."""
         out = TensorDict({}, batch_size=[self.num_robots])
         for key in self.keys:
-            out.set(key, getattr(self, _buffer_name(key)))
+            out.set(key, getattr(self, buffer_name(key)))
         return out
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -139,7 +139,7 @@ class GraphLookup(TensorDictModuleBase):
                 f"{self.num_robots} robots"
             )
         for key in self.keys:
-            tensordict.set(key, getattr(self, _buffer_name(key))[ids])
+            tensordict.set(key, getattr(self, buffer_name(key))[ids])
         return tensordict
 
     def extra_repr(self) -> str:

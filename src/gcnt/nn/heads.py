@@ -22,7 +22,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import Tensor, nn
 from torchrl.modules import ProbabilisticActor
 
-from gcnt.nn import keys as K
+from gcnt import keys as K
 from gcnt.nn.distributions import MaskedNormal
 from gcnt.nn.masking import limb_mean
 

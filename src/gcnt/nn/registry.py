@@ -1,7 +1,7 @@
 """Build any method's network for any role by name; register new methods.
 
 >>> actor = make_network("gcnt", "td3_actor", table=table, obs_dim=19, num_actions=1)
->>> critics = make_td3_critics("gcnt", table=table, obs_dim=19, num_actions=1)  # twin, independent
+>>> critic = make_network("gcnt", "td3_critic", table=table, obs_dim=19, num_actions=1)
 >>> pi = make_network("modumorph", "ppo_actor", table=table, obs_dim=52, num_actions=2,
 ...                   preset="unimal", hfield_dim=1410, ppo_std="fixed", ppo_init_std=0.9)
 
@@ -211,16 +211,6 @@ def make_network(
         robot_names=robot_names,
         keep_intermediates=keep_intermediates,
     )
-
-
-def make_td3_critics(name: str, *, num: int = 2, **kwargs: Any) -> list[TensorDictModuleBase]:
-    """``num`` independently initialised TD3 critics, for ``TD3Loss(actor, critics, ...)``.
-
-    Given a single qvalue network, TD3Loss makes the twins itself by expanding its parameters and
-    re-drawing every tensor uniformly between its min and max (LayerNorm weights stay 1, but no
-    layer keeps its own init scheme); passing a list uses these modules' own initialisations.
-    """
-    return [make_network(name, "td3_critic", **kwargs) for _ in range(num)]
 
 
 def count_parameters(module) -> int:

@@ -15,8 +15,8 @@ import torch.nn.functional as F
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
+from gcnt import keys as K
 from gcnt.morphology import DIST_PAD
-from gcnt.nn import keys as K
 from gcnt.nn.layers import (
     ContextTransformer,
     HyperLinear,

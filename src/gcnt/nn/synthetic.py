@@ -83,6 +83,6 @@ def random_robots(sizes: Sequence[int], seed: int = 0) -> list[Robot]:
 def smpenv_like_robots() -> list[Robot]:
     """The CWHH++ training robots (read from the robot files shipped with gcnt; a missing or
     broken file is an error, never silently replaced)."""
-    from gcnt.morphology.benchmarks import resolve_robots
+    from gcnt.morphology.catalogues import resolve_robots
 
     return resolve_robots(["CWHH++:train"])

@@ -133,7 +133,7 @@ class Algorithm(ABC):
 
 
 _ALGORITHMS: dict[str, type[Algorithm]] = {}
-_BUILTIN: dict[str, str] = {"td3": "gcnt.rl.td3:TD3", "ppo": "gcnt.rl.ppo:PPO"}
+_BUILTIN: dict[str, str] = {"td3": "gcnt.rl.td3.learner:TD3", "ppo": "gcnt.rl.ppo.learner:PPO"}
 
 
 def register_algorithm(name: str, cls: type[Algorithm], *, replace: bool = False) -> None:

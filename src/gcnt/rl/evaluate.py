@@ -18,7 +18,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from gcnt.morphology import Robot
-from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.factories import base_env, make_env

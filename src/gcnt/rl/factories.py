@@ -14,10 +14,10 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 
 from gcnt.envs.benchmark import Benchmark, get_benchmark
+from gcnt.keys import ACTION, HFIELD, OBS
 from gcnt.morphology import Robot
-from gcnt.morphology.benchmarks import resolve_robots
+from gcnt.morphology.catalogues import resolve_robots
 from gcnt.nn.graph_lookup import is_table_key
-from gcnt.nn.keys import ACTION, HFIELD, OBS
 from gcnt.nn.registry import make_network
 from gcnt.recipes import Recipe, RecipeError
 
@@ -51,19 +51,36 @@ def make_env(
 
     Instance i·copies + c is copy c of robot i; its ``morph_id`` is i.
     """
-    bench = benchmark_of(recipe)
     instances = [r for r in robots for _ in range(copies)]
     ids = [i for i in range(len(robots)) for _ in range(copies)]
-    env = bench.make_env(
+    env = make_batched_env(
+        recipe, instances, ids, seed=seed, max_limbs=max_limbs, num_threads=num_threads
+    )
+    return TransformedEnv(env, RewardSum())
+
+
+def make_batched_env(
+    recipe: Recipe,
+    instances: Sequence[Robot],
+    robot_ids: Sequence[int],
+    *,
+    seed: int | None = None,
+    max_limbs: int | None = None,
+    num_threads: int | None = None,
+) -> EnvBase:
+    """The benchmark's batched env (no transforms) with one sub-env per entry of ``instances``,
+    sub-env i reporting ``morph_id`` ``robot_ids[i]``; the recipe's world, episode length, seed
+    and threads unless given."""
+    bench = benchmark_of(recipe)
+    return bench.make_env(
         instances,
         max_limbs=max_limbs or recipe.env.max_limbs,
         max_episode_steps=recipe.env.max_episode_steps,
         seed=recipe.seed if seed is None else seed,
         num_threads=num_threads if num_threads is not None else recipe.env.num_threads,
-        robot_ids=ids,
+        robot_ids=robot_ids,
         world=bench.check_world(recipe.env.world),
     )
-    return TransformedEnv(env, RewardSum())
 
 
 def base_env(env: EnvBase) -> EnvBase:

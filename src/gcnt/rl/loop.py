@@ -27,6 +27,7 @@ from torchrl.envs import EnvBase
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from gcnt import keys as K
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.accelerate import collector_kwargs
@@ -71,7 +72,7 @@ class TrainStats:
 
     def add_episodes(self, data: TensorDictBase) -> None:
         done = data["next", "done"].squeeze(-1)
-        robots = data["morph_id"][done].tolist()
+        robots = data[K.MORPH_ID][done].tolist()
         rets = data["next", "episode_reward"].squeeze(-1)[done].tolist()
         for robot, ret in zip(robots, rets, strict=True):
             self.returns[robot].append(ret)

@@ -41,8 +41,9 @@ from collections.abc import Callable, Mapping, Sequence
 import mujoco
 import numpy as np
 
-from gcnt.envs.base import Featurizer
-from gcnt.envs.featurize import origin_velocity, torso_relative_position
+from gcnt import keys as K
+from gcnt.envs.kinematics import origin_velocity, torso_relative_position
+from gcnt.envs.plugins import Featurizer
 from gcnt.envs.unimal import hfield as H
 from gcnt.morphology import Robot
 
@@ -202,7 +203,7 @@ class UnimalFeaturizer(Featurizer):
 
     @property
     def root_outputs(self) -> Mapping[str, int]:
-        return {"hfield": H.HFIELD_DIM} if self._terrains is not None else {}
+        return {K.HFIELD: H.HFIELD_DIM} if self._terrains is not None else {}
 
     def limb_context(self, robot: Robot, model: mujoco.MjModel) -> np.ndarray:
         tpl, joints = static_features(robot, model)
@@ -307,4 +308,4 @@ class UnimalFeaturizer(Featurizer):
         else:
             part(0, n, work)
         self.hfield_seconds += time.perf_counter() - t
-        return {"hfield": out}
+        return {K.HFIELD: out}

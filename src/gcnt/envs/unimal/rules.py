@@ -18,7 +18,7 @@ import math
 import mujoco
 import numpy as np
 
-from gcnt.envs.base import TaskRules
+from gcnt.envs.plugins import TaskRules
 from gcnt.envs.unimal import worlds as W
 from gcnt.envs.unimal.terrain import MTTerrain, ObstacleField
 from gcnt.morphology import Robot

@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from gcnt.morphology.benchmarks import Catalogue, morphologies_dir, stale_files
+from gcnt.morphology.catalogues import Catalogue, morphologies_dir, stale_files
 from gcnt.morphology.robot import Robot, RobotFileError, load_robot, robot_from_xml
 from gcnt.morphology.unimal.generate import generate
 from gcnt.morphology.unimal.mjcf import build_mjcf

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from tensordict import TensorDictBase
 
-from gcnt.nn import keys as K
+from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import TransformerConfig
 from gcnt.nn.stages import encoder_of, limb_encoder_stage, limb_head_stage, transformer_stage

@@ -16,7 +16,7 @@ from __future__ import annotations
 from tensordict import TensorDictBase
 from torch import nn
 
-from gcnt.nn import keys as K
+from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import MetaMorphConfig
 from gcnt.nn.layers import last_linear

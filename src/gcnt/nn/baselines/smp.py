@@ -22,7 +22,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
-from gcnt.nn import keys as K
+from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SMPConfig
 from gcnt.nn.layers import flatten_lead, mlp

@@ -21,21 +21,22 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import LazyTensorStorage, ReplayBuffer, ReplayBufferEnsemble
+
+from gcnt import keys as K
 
 #: keys kept per transition
 STORED_KEYS: tuple = (
-    "morph_id",
-    ("limbs", "obs"),
-    ("limbs", "action"),
-    ("next", "limbs", "obs"),
-    ("next", "reward"),
-    ("next", "done"),
-    ("next", "terminated"),
-    ("next", "truncated"),
+    K.MORPH_ID,
+    K.OBS,
+    K.ACTION,
+    (K.NEXT, *K.OBS),
+    (K.NEXT, K.REWARD),
+    (K.NEXT, K.DONE),
+    (K.NEXT, K.TERMINATED),
+    (K.NEXT, K.TRUNCATED),
 )
 #: kept too when the env emits them (height-map worlds)
-OPTIONAL_KEYS: tuple = ("hfield", ("next", "hfield"))
+OPTIONAL_KEYS: tuple = (K.HFIELD, (K.NEXT, K.HFIELD))
 
 
 def per_robot_capacity(num_robots: int, size_per_robot: int, total_size: int) -> int:
@@ -103,7 +104,7 @@ class RobotReplay:
             return 0
         if self.storage is None:
             self._allocate(flat)
-        ids = flat.get("morph_id").reshape(n).to("cpu", torch.long)
+        ids = flat.get(K.MORPH_ID).reshape(n).to("cpu", torch.long)
         if int(ids.min()) < 0 or int(ids.max()) >= self.num_robots:
             raise IndexError(
                 f"RobotReplay: morph_id {int(ids.max())} out of range for {self.num_robots} robots"
@@ -212,30 +213,3 @@ class RobotReplay:
 
     def load(self, path: str | Path) -> None:
         self.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
-
-
-# ---------------------------------------------------------------------- the previous layout
-
-
-def make_ensemble(
-    num_robots: int, capacity: int, batch_size: int, device: str | torch.device = "cpu"
-) -> ReplayBufferEnsemble:
-    """Per-robot torchrl buffers routed by ``morph_id`` (the layout :class:`RobotReplay`
-    replaced; kept for ``gcnt bench-train``'s before/after and for tests)."""
-    buffers = [
-        ReplayBuffer(storage=LazyTensorStorage(capacity, device=device), batch_size=batch_size)
-        for _ in range(num_robots)
-    ]
-    return ReplayBufferEnsemble(
-        *buffers, routing_key="morph_id", sample_from_all=True, batch_size=batch_size * num_robots
-    )
-
-
-def ensemble_store(replay: ReplayBufferEnsemble, data: TensorDictBase) -> int:
-    flat = data.select(*STORED_KEYS).reshape(-1)
-    replay.extend(flat)
-    return flat.numel()
-
-
-def ensemble_sample_mixed(replay: ReplayBufferEnsemble) -> TensorDictBase:
-    return replay.sample().exclude("index").reshape(-1)

@@ -1,11 +1,29 @@
-"""TD3 for one policy over many robots, behind the algorithm seam (``gcnt.rl.algorithm``).
+"""TD3 for one policy over many robots, behind the algorithm seam (:mod:`gcnt.rl.algorithm`).
 
-Parts: per-robot replay rings in one [robots, capacity] storage (:class:`gcnt.rl.replay.
-RobotReplay`, one index draw per mini-batch), per-limb twin critics with a per-robot TD target
-(the loss math in ``td3_loss``, checked against torchrl's ``TD3Loss`` by the tests), soft target
-updates and Gaussian exploration (torchrl's ``AdditiveGaussianModule``); the shared run loop
-(``gcnt.rl.loop``) collects the batches. Settings: the ``td3:`` recipe section
-(``gcnt.rl.td3_config``); speed switches: the ``compile:`` section (``gcnt.rl.accelerate``).
+One update, in the order the code runs (the run loop, :func:`gcnt.rl.loop.train`, hands each
+collected batch to :meth:`TD3.process`):
+
+1. **store** (:meth:`TD3.store`): the batch goes into the per-robot replay rings, one
+   [robots, capacity] storage (:class:`~gcnt.rl.td3.replay.RobotReplay`), and the
+   :class:`UpdateSchedule` counts what each robot stored;
+2. **sample** (:meth:`UpdateSchedule.batches`): the schedule yields the phase's mini-batches,
+   ``RobotReplay.sample_mixed`` (``mixed``) or ``sample_robot`` (``paper``), one index draw each;
+3. **target** (:meth:`TD3Learner.critic_loss`): the robot-only stages run once per robot
+   (:class:`~gcnt.rl.td3.tensor_chain.TensorChain`); the target actor's action plus clipped noise
+   (:func:`~gcnt.rl.td3.loss.smoothed_target_action`), the target critics' per-limb Q' and the
+   TD target (:func:`~gcnt.rl.td3.loss.td_target`);
+4. **critic step** (:meth:`TD3Learner._critic_step`): the twin-critic loss
+   (:func:`~gcnt.rl.td3.loss.twin_critic_loss`), backward, then :func:`apply_gradients` (clip →
+   Adam step → zero_grad);
+5. **delayed actor and target step** (:func:`delayed_update`, every ``policy_delay`` critic
+   steps, :meth:`TD3Learner._actor_step`): -Q1 of the actor's action
+   (:func:`~gcnt.rl.td3.loss.deterministic_actor_loss`), gradients for the actor only,
+   :func:`apply_gradients`, then :func:`soft_update` of all four target networks by ``tau``.
+
+Steps 4 and 5 are the two functions the ``compile:`` recipe section may compile or capture
+(:mod:`gcnt.rl.accelerate`). Exploration is the actor plus Gaussian noise (torchrl's
+``AdditiveGaussianModule``). Settings: the ``td3:`` recipe section (:mod:`gcnt.rl.td3.config`).
+Several seeds in one process: :mod:`gcnt.rl.td3.stacked` (the same steps under one vmap).
 
 Two update schedules (``td3.schedule``):
 
@@ -22,7 +40,7 @@ from __future__ import annotations
 
 import copy
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -33,22 +51,23 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 from torchrl.modules import AdditiveGaussianModule
 
+from gcnt import keys as K
+from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
-from gcnt.nn.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.recipes import Recipe
-from gcnt.rl import replay as rb
 from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.factories import load_weights, make_net, network_weights
-from gcnt.rl.td3_config import TD3Config
-from gcnt.rl.td3_loss import (
+from gcnt.rl.td3 import replay as rb
+from gcnt.rl.td3.config import TD3Config
+from gcnt.rl.td3.loss import (
     deterministic_actor_loss,
     smoothed_target_action,
     target_noise,
     td_target,
     twin_critic_loss,
 )
-from gcnt.rl.tensor_chain import TensorChain, TensorChainModule
+from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +114,7 @@ class TD3Learner:
     def loss_shell(self) -> TD3Learner:
         """A learner with copies of this one's four networks and settings, and no optimiser or
         step: its :meth:`critic_loss` and :meth:`actor_loss` run with whatever parameters are
-        swapped into its networks (``gcnt.rl.stacked`` swaps each seed's in, leaving the seeds'
+        swapped into its networks (``gcnt.rl.td3.stacked`` swaps each seed's in, leaving the seeds'
         own modules untouched)."""
         shell = object.__new__(type(self))
         shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
@@ -139,8 +158,8 @@ class TD3Learner:
                 nxt[ACTION] = smoothed_target_action(next_action, noise)
                 next_q = tuple(f(nxt, robots)[LIMB_Q] for f in self.f_target_critics)
                 target = td_target(
-                    batch.get(("next", "reward")),
-                    batch.get(("next", "terminated")),
+                    batch.get((K.NEXT, K.REWARD)),
+                    batch.get((K.NEXT, K.TERMINATED)),
                     next_q,
                     mask,
                     o.gamma,
@@ -167,13 +186,9 @@ class TD3Learner:
     # behind (zeroed after the optimiser step, as a captured graph needs).
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update on ``batch``; returns ``loss_critic``."""
-        o = self.config
         loss = self.critic_loss(batch)
         loss.backward()
-        if o.max_grad_norm > 0:
-            torch.nn.utils.clip_grad_norm_(self.critic_params, o.max_grad_norm, foreach=True)
-        self.critic_opt.step()
-        self.critic_opt.zero_grad(set_to_none=True)
+        apply_gradients(self.critic_opt, self.critic_params, self.config.max_grad_norm, clip_norm)
         return TensorDict({"loss_critic": loss.detach()})
 
     def _actor_step(self, batch: TensorDictBase) -> TensorDictBase:
@@ -185,12 +200,8 @@ class TD3Learner:
         grads = torch.autograd.grad(loss, self.actor_params, allow_unused=True)
         for p, g in zip(self.actor_params, grads, strict=True):
             p.grad = g
-        if o.max_grad_norm > 0:
-            torch.nn.utils.clip_grad_norm_(self.actor_params, o.max_grad_norm, foreach=True)
-        self.actor_opt.step()
-        self.actor_opt.zero_grad(set_to_none=True)
-        with torch.no_grad():
-            torch._foreach_lerp_(self._target, self._online, o.tau)
+        apply_gradients(self.actor_opt, self.actor_params, o.max_grad_norm, clip_norm)
+        soft_update(self._target, self._online, o.tau)
         return TensorDict({"loss_actor": loss.detach()})
 
     def step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
@@ -238,6 +249,31 @@ class TD3Learner:
         self.updates = state["updates"]
 
 
+def clip_norm(params: Sequence[torch.Tensor], max_norm: float) -> None:
+    """torch's gradient-norm clip over all ``params`` together."""
+    torch.nn.utils.clip_grad_norm_(params, max_norm, foreach=True)
+
+
+def apply_gradients(
+    opt: torch.optim.Optimizer,
+    params: Sequence[torch.Tensor],
+    max_grad_norm: float,
+    clip: Callable[[Sequence[torch.Tensor], float], Any],
+) -> None:
+    """The optimiser tail of every TD3 step: ``clip`` the gradients of ``params`` to
+    ``max_grad_norm`` (0: no clipping), step, and leave no gradient behind."""
+    if max_grad_norm > 0:
+        clip(params, max_grad_norm)
+    opt.step()
+    opt.zero_grad(set_to_none=True)
+
+
+def soft_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:
+    """Move every target tensor ``tau`` of the way towards its online tensor."""
+    with torch.no_grad():
+        torch._foreach_lerp_(target, online, tau)
+
+
 def delayed_update(learner, batch: TensorDictBase) -> dict[str, torch.Tensor]:
     """TD3's delayed policy update on a learner with ``critic_step``, ``actor_step``,
     ``updates``, ``config`` and ``accel``: a critic step, then an actor + target step on every
@@ -272,7 +308,7 @@ class UpdateSchedule:
         self.finished = np.zeros(num_robots, dtype=bool)  # robot ended an episode since then
 
     def add(self, data: TensorDictBase) -> None:
-        morph = data["morph_id"]
+        morph = data[MORPH_ID]
         self.pending += np.bincount(morph.reshape(-1).numpy(), minlength=len(self.pending))
         self.finished[morph[data["next", "done"].squeeze(-1)].numpy()] = True
 

@@ -355,7 +355,6 @@ def pinned_env(threads: int, base: dict[str, str] | None = None) -> dict[str, st
     env = dict(os.environ if base is None else base)
     for var in THREAD_VARS:
         env[var] = str(threads)
-    env.setdefault("MUJOCO_GL", "egl")
     return env
 
 

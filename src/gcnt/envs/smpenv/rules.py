@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from gcnt.envs.base import TaskRules
+from gcnt.envs.plugins import TaskRules
 from gcnt.morphology import Robot
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """Several seeds' TD3 learners updated together: parameters stacked, losses under one vmap.
 
-S :class:`~gcnt.rl.td3.TD3Learner` of one recipe (one per seed) keep their own modules,
+S :class:`~gcnt.rl.td3.learner.TD3Learner` of one recipe (one per seed) keep their own modules,
 optimisers and update counts. :class:`StackedTD3Learner` holds their online and target parameters
 stacked along a leading seed dimension (leaves [S, ...]) and computes the critic and the actor
 losses of every seed with one ``torch.vmap`` call over (stacked parameters, stacked per-seed
@@ -17,7 +17,7 @@ consumes the same random numbers as it would training alone.
 the stack (at the start, and after a seed's state was loaded); :meth:`StackedTD3Learner.push`
 writes them back, so that each seed's collector policy, checkpoints and evaluation read its own
 updated modules. :class:`StackedTD3` runs the update phase of S TD3 algorithms (their replays and
-schedules) on one collected batch each; ``gcnt.rl.stacked_loop`` is the training loop around it.
+schedules) on one collected batch each; ``gcnt.rl.td3.stacked_loop`` is the training loop around it.
 """
 
 from __future__ import annotations
@@ -32,12 +32,19 @@ from tensordict.nn import TensorDictParams
 from torch import nn
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from gcnt.nn.keys import ACTION, MORPH_ID
+from gcnt.keys import ACTION, MORPH_ID
 from gcnt.rl.accelerate import accelerate, optimizer_kwargs
 from gcnt.rl.run_dir import rng_state, set_rng_state
-from gcnt.rl.td3 import TD3, TD3Learner, delayed_update, loss_rows
-from gcnt.rl.td3_loss import target_noise
-from gcnt.rl.tensor_chain import _has_dropout
+from gcnt.rl.td3.learner import (
+    TD3,
+    TD3Learner,
+    apply_gradients,
+    delayed_update,
+    loss_rows,
+    soft_update,
+)
+from gcnt.rl.td3.loss import target_noise
+from gcnt.rl.td3.tensor_chain import has_dropout
 
 #: where a stacked batch carries each seed's target-smoothing noise (shaped like the action)
 NOISE = "target_noise"
@@ -58,7 +65,12 @@ def _target(learner: TD3Learner) -> nn.Module:
 
 def _stack(modules: Sequence[nn.Module]) -> TensorDict:
     """The parameters (not buffers) of same-shaped ``modules``, stacked: leaves [S, ...], keyed
-    as the modules nest them (what ``to_module`` swaps in)."""
+    as the modules nest them (what ``to_module`` swaps in).
+
+    Not ``TensorDict.from_modules``: it stacks the buffers too, so the robot table that every
+    chain holds as buffers (``GraphLookup``) would be copied once per seed (checked with
+    tensordict 0.14: a [S, ...] copy of each table buffer), and swapped in needlessly at every
+    loss call."""
     per_module = [dict(m.named_parameters()) for m in modules]
     out = TensorDict(batch_size=[len(modules)])
     for name in per_module[0]:
@@ -105,7 +117,7 @@ class StackedTD3Learner:
                 if getattr(other.config, key) != getattr(self.config, key):
                     raise ValueError(f"stacked seeds: td3.{key} differs between the learners")
         for name in ("actor", "critics"):
-            if _has_dropout(getattr(first, name)):
+            if has_dropout(getattr(first, name)):
                 raise ValueError(
                     f"stacked seeds: the {name} has dropout, whose draws inside one vmap would "
                     "differ from the seeds' own; train these seeds one by one"
@@ -155,10 +167,9 @@ class StackedTD3Learner:
                 self.online, self.target, batch, ids
             )
         loss.sum().backward()  # the seeds share no parameter: each gets its own gradient
-        if o.max_grad_norm > 0:
-            clip_grad_norm_per_seed(self.critic_leaves, o.max_grad_norm)
-        self.critic_opt.step()
-        self.critic_opt.zero_grad(set_to_none=True)
+        apply_gradients(
+            self.critic_opt, self.critic_leaves, o.max_grad_norm, clip_grad_norm_per_seed
+        )
         return TensorDict({"loss_critic": loss.detach()})
 
     def _actor_step(self, batch: TensorDictBase) -> TensorDictBase:
@@ -173,12 +184,8 @@ class StackedTD3Learner:
         # CPU's fused Adam then read them in the wrong order (seen with torch 2.13)
         for p, g in zip(self.actor_leaves, grads, strict=True):
             p.grad = None if g is None else g.contiguous()
-        if o.max_grad_norm > 0:
-            clip_grad_norm_per_seed(self.actor_leaves, o.max_grad_norm)
-        self.actor_opt.step()
-        self.actor_opt.zero_grad(set_to_none=True)
-        with torch.no_grad():
-            torch._foreach_lerp_(self._target_leaves, self._online_leaves, o.tau)
+        apply_gradients(self.actor_opt, self.actor_leaves, o.max_grad_norm, clip_grad_norm_per_seed)
+        soft_update(self._target_leaves, self._online_leaves, o.tau)
         return TensorDict({"loss_actor": loss.detach()})
 
     def stack_batches(
@@ -295,7 +302,7 @@ class SeedRNG:
 
 
 class StackedTD3:
-    """The update phase of S :class:`~gcnt.rl.td3.TD3` algorithms (one recipe, S seeds), each
+    """The update phase of S :class:`~gcnt.rl.td3.learner.TD3` algorithms (one recipe, S seeds), each
     with its own replay and schedule, on one collected batch each: the stored steps, then as many
     stacked updates as each seed's schedule yields (the same number: mixed schedule, same robots,
     lockstep), then the weights pushed back to the seeds."""

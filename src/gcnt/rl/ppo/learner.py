@@ -3,7 +3,7 @@
 Built from torchrl parts: ``ClipPPOLoss`` (ratio clip, value clipped around the old value),
 ``GAE`` (timeouts bootstrap with V(s): truncation is not termination), a ``ReplayBuffer`` sampled
 without replacement for the mini-batches, and the shared run loop's collector. Settings: the
-``ppo:`` recipe section (``gcnt.rl.ppo_config``; defaults are the paper's table 4).
+``ppo:`` recipe section (``gcnt.rl.ppo.config``; defaults are the paper's table 4).
 
 One iteration, read top to bottom (:meth:`PPOLearner.learn`):
 
@@ -19,7 +19,7 @@ One iteration, read top to bottom (:meth:`PPOLearner.learn`):
    the robot sampler updates its probabilities from the finished episodes' lengths.
 
 With ``robot_sampling: sampled`` the envs are slots: each takes a robot drawn by
-:class:`~gcnt.rl.robot_sampler.RobotSampler` at every reset (``BatchedMujocoEnv.use_robot_pool``).
+:class:`~gcnt.rl.ppo.robot_sampler.RobotSampler` at every reset (``BatchedMujocoEnv.use_robot_pool``).
 """
 
 from __future__ import annotations
@@ -37,27 +37,26 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
-from torchrl.envs import EnvBase, RewardSum, TransformedEnv
+from torchrl.envs import Compose, EnvBase, RewardSum, StepCounter, TransformedEnv
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from gcnt.keys import ACTION, HFIELD, LOG_PROB, MASK, MORPH_ID, OBS, VALUE
 from gcnt.morphology import Robot
-from gcnt.nn.keys import ACTION, HFIELD, LOG_PROB, MASK, MORPH_ID, OBS, VALUE
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.accelerate import autocast, compile_step
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.factories import (
     base_env,
-    benchmark_of,
     env_widths,
     load_weights,
-    make_env,
+    make_batched_env,
     make_net,
     network_weights,
 )
-from gcnt.rl.normalize import ObsNormalizer, RewardScaler
-from gcnt.rl.ppo_config import PPOConfig
-from gcnt.rl.robot_sampler import RobotDraw, RobotSampler, shared_probs
+from gcnt.rl.ppo.config import PPOConfig
+from gcnt.rl.ppo.normalize import ObsNormalizer, RewardScaler
+from gcnt.rl.ppo.robot_sampler import RobotDraw, RobotSampler, shared_probs
 
 log = logging.getLogger(__name__)
 
@@ -290,28 +289,14 @@ class PPOLearner:
         self.updates = state["updates"]
 
 
-class EpisodeLengths:
-    """Lengths of the episodes that end in each batch (carried across batches per env)."""
-
-    def __init__(self, num_envs: int):
-        self.steps = np.zeros(num_envs, np.int64)
-
-    def __call__(self, data: TensorDictBase) -> tuple[np.ndarray, np.ndarray]:
-        """``(robot ids, lengths)`` of the episodes that ended in ``data`` [N, T]."""
-        done = data.get(("next", "done")).reshape(data.shape).cpu().numpy()
-        morph = data.get(MORPH_ID).reshape(data.shape).cpu().numpy()
-        robots, lengths = [], []
-        steps = self.steps
-        for t in range(done.shape[1]):
-            steps += 1
-            d = done[:, t]
-            if d.any():
-                robots.append(morph[d, t])
-                lengths.append(steps[d].copy())
-                steps[d] = 0
-        if not robots:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return np.concatenate(robots), np.concatenate(lengths)
+def finished_episodes(data: TensorDictBase) -> tuple[np.ndarray, np.ndarray]:
+    """``(robot ids, lengths)`` of the episodes that ended in ``data`` [N, T], in time order;
+    the lengths are torchrl's ``StepCounter`` count at the last step."""
+    done = data.get(("next", "done")).reshape(data.shape).cpu().numpy()
+    count = data.get(("next", "step_count")).reshape(data.shape).cpu().numpy()
+    morph = data.get(MORPH_ID).reshape(data.shape).cpu().numpy()
+    done_t, done_n = np.nonzero(done.T)  # time-major, as the episodes ended
+    return morph[done_n, done_t], count[done_n, done_t].astype(np.int64)
 
 
 def make_slot_env(
@@ -325,7 +310,8 @@ def make_slot_env(
 ) -> TransformedEnv:
     """``num_envs`` envs over the run's ``robots``: with ``draw``, slots that take a robot drawn
     at every reset (``morph_id`` = index in ``robots``); without, ``num_envs / len(robots)``
-    copies of each robot. Episode returns are tracked (``RewardSum``)."""
+    copies of each robot. Episode returns (``RewardSum``) and lengths (``StepCounter``) are
+    tracked."""
     r = len(robots)
     k = recipe.env.max_limbs or max(x.num_limbs for x in robots)
     if draw is None:
@@ -334,22 +320,15 @@ def make_slot_env(
                 f"ppo.robot_sampling: fixed needs ppo.num_envs ({num_envs}) to be a multiple of "
                 f"the {r} training robots; use robot_sampling: sampled"
             )
-        return make_env(
-            recipe, robots, copies=num_envs // r, seed=seed, max_limbs=k, num_threads=num_threads
-        )
-    bench = benchmark_of(recipe)
-    first = [i % r for i in range(num_envs)]
-    env = bench.make_env(
-        [robots[i] for i in first],
-        max_limbs=k,
-        max_episode_steps=recipe.env.max_episode_steps,
-        seed=seed,
-        num_threads=num_threads if num_threads is not None else recipe.env.num_threads,
-        robot_ids=first,
-        world=bench.check_world(recipe.env.world),
+        ids = [i for i in range(r) for _ in range(num_envs // r)]
+    else:
+        ids = [i % r for i in range(num_envs)]
+    env = make_batched_env(
+        recipe, [robots[i] for i in ids], ids, seed=seed, max_limbs=k, num_threads=num_threads
     )
-    env.use_robot_pool(robots, draw)
-    return TransformedEnv(env, RewardSum())
+    if draw is not None:
+        env.use_robot_pool(robots, draw)
+    return TransformedEnv(env, Compose(RewardSum(), StepCounter()))
 
 
 class PPO(Algorithm):
@@ -389,7 +368,6 @@ class PPO(Algorithm):
             probs=None if self.draw is None else self.draw.probs,  # the env reads these
         )
         self.scaler = RewardScaler(o.num_envs, o.gamma, o.reward_clip) if o.reward_scaling else None
-        self.lengths = EpisodeLengths(o.num_envs)
         self._extras: dict[str, float] = {}
         self._t_end: float | None = None
 
@@ -433,7 +411,7 @@ class PPO(Algorithm):
         t0 = time.perf_counter()
         collect_s = t0 - self._t_end if self._t_end is not None else float("nan")
         data = data.reshape(o.num_envs, -1)  # [N, T]; a multi-process collector stacks workers
-        robots, lengths = self.lengths(data)
+        robots, lengths = finished_episodes(data)
         self.sampler.add_episodes(robots, lengths)
         if self.scaler is not None:
             data = data.clone(False)

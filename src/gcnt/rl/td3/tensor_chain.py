@@ -24,9 +24,9 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import Tensor, nn
 
+from gcnt.keys import MORPH_ID
 from gcnt.nn.graph_lookup import GraphLookup
-from gcnt.nn.graph_lookup import _buffer_name as table_buffer_name
-from gcnt.nn.keys import MORPH_ID
+from gcnt.nn.graph_lookup import buffer_name as table_buffer_name
 
 Key = str | tuple[str, ...]
 
@@ -56,7 +56,7 @@ def _stages(module: TensorDictModuleBase) -> list[TensorDictModuleBase]:
     return [module]
 
 
-def _has_dropout(module: nn.Module) -> bool:
+def has_dropout(module: nn.Module) -> bool:
     for m in module.modules():
         if isinstance(m, nn.modules.dropout._DropoutNd) and m.p > 0:
             return True
@@ -114,7 +114,7 @@ class TensorChain:
                 plain
                 and bool(in_keys)
                 and all(k in static for k in in_keys)
-                and not _has_dropout(st)
+                and not has_dropout(st)
             )
             if per_robot:
                 static |= set(out_keys)

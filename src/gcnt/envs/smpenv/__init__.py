@@ -1,8 +1,8 @@
 """SMPEnv: the SMPENV benchmark on the batched MuJoCo env (N planar robots, any mix, padded).
 
 SMPENV plugs into :class:`~gcnt.envs.base.BatchedMujocoEnv` with its featuriser
-(:class:`~gcnt.envs.featurize.LimbFeaturizer`, 19 numbers per limb), its task rules
-(:class:`~gcnt.envs.tasks.PlanarRootRules`: planar root joints, per-family reward, healthy test
+(:class:`~gcnt.envs.smpenv.featurize.LimbFeaturizer`, 19 numbers per limb), its task rules
+(:class:`~gcnt.envs.smpenv.rules.PlanarRootRules`: planar root joints, per-family reward, healthy test
 and reset noise), one action slot per limb (each limb has one hinge and one motor) and a frame
 skip of 4. There are no root outputs (no height map) and no limb context.
 
@@ -17,8 +17,8 @@ import torch
 
 from gcnt.envs.base import BatchedMujocoEnv, PhysicsBlowupWarning
 from gcnt.envs.benchmark import Benchmark
-from gcnt.envs.featurize import OBS_DIM, LimbFeaturizer
-from gcnt.envs.tasks import FRAME_SKIP, PlanarRootRules
+from gcnt.envs.smpenv.featurize import OBS_DIM, LimbFeaturizer
+from gcnt.envs.smpenv.rules import FRAME_SKIP, PlanarRootRules
 from gcnt.morphology import Robot
 
 __all__ = ["SMPENV_BENCHMARK", "PhysicsBlowupWarning", "SMPEnv"]
@@ -31,8 +31,8 @@ class SMPEnv(BatchedMujocoEnv):
     """N SMPENV robots in lockstep, batch [N]; the same robot may appear several times.
 
     Emits the TensorDict contract (see ``gcnt.envs.base``) with ``limbs/obs`` [N,K,19] (see
-    ``gcnt.envs.featurize``) and takes ``limbs/action`` [N,K,1] in [-1, 1]. Rewards,
-    terminations and reset noise follow ``gcnt.envs.tasks``.
+    ``gcnt.envs.smpenv.featurize``) and takes ``limbs/action`` [N,K,1] in [-1, 1]. Rewards,
+    terminations and reset noise follow ``gcnt.envs.smpenv.rules``.
 
     Args:
         robots: one :class:`~gcnt.morphology.Robot` per sub-env.

@@ -1,11 +1,11 @@
 """Several seeds of one TD3 recipe trained in one process (``gcnt train RECIPE --seeds 0,1,2``).
 
 Each seed is an ordinary run: its own recipe copy (``seed`` set), env, collector, replay,
-schedule, global random state (:class:`gcnt.rl.stacked.SeedRNG`) and run directory (the default
+schedule, global random state (:class:`gcnt.rl.td3.stacked.SeedRNG`) and run directory (the default
 ``runs/<task>/<algo>-<method>/seed<N>``, or ``<run_dir>/seed<N>`` when the recipe sets
 ``run_dir``), with its own metrics rows, checkpoints and evaluations, written by the helpers of
 :mod:`gcnt.rl.loop`. The seeds advance in lockstep: each collects one batch, then the update phase
-runs every seed's updates together (:class:`gcnt.rl.stacked.StackedTD3`: networks stacked, one
+runs every seed's updates together (:class:`gcnt.rl.td3.stacked.StackedTD3`: networks stacked, one
 vmapped step per update).
 
 Only what keeps every seed's update count equal per batch is accepted: TD3 with
@@ -35,7 +35,7 @@ from gcnt.rl.loop import (
     prepare,
 )
 from gcnt.rl.run_dir import RunDir, make_logger
-from gcnt.rl.stacked import SeedRNG, StackedTD3
+from gcnt.rl.td3.stacked import SeedRNG, StackedTD3
 
 log = logging.getLogger(__name__)
 

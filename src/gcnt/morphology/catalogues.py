@@ -101,7 +101,7 @@ class Catalogue:
 _REGISTRY: dict[str, Catalogue] = {}
 #: built-in catalogues, imported on first use
 _BUILTIN: dict[str, str] = {
-    "smpenv": "gcnt.morphology.benchmarks:SMPENV_CATALOGUE",
+    "smpenv": "gcnt.morphology.catalogues:SMPENV_CATALOGUE",
     "unimal": "gcnt.morphology.unimal.catalogue:UNIMAL_CATALOGUE",
 }
 

@@ -1,0 +1,230 @@
+"""The physics thread stepper of :class:`gcnt.envs.base.BatchedMujocoEnv` and its tuning.
+
+A step runs on ``num_threads`` threads (``mj_step`` releases the GIL): each thread pulls sub-envs
+from a shared queue (:class:`StepQueue`), most expensive first (by a running average of their
+physics time, so that the threads finish together), steps them, refreshes the kinematics the
+featuriser needs, copies the rows the observation needs, and applies the task rules (while one
+thread does this Python work, the others are in the physics); then one vectorised featurisation
+covers all sub-envs. With ``num_threads=None`` the env probes now and then whether one thread
+or all of them step faster (:meth:`ThreadedPhysics._threads_now`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import Counter, deque
+from concurrent.futures import ThreadPoolExecutor
+
+import mujoco
+import numpy as np
+
+import gcnt
+
+log = logging.getLogger(__name__)
+
+#: MuJoCo's bad qpos/qvel/qacc warnings: a sub-env that raises one has blown up
+BLOWUP_WARNINGS = np.array(
+    [
+        int(mujoco.mjtWarning.mjWARN_BADQPOS),
+        int(mujoco.mjtWarning.mjWARN_BADQVEL),
+        int(mujoco.mjtWarning.mjWARN_BADQACC),
+    ]
+)
+
+# num_threads=None: see BatchedMujocoEnv._threads_now
+TUNE_PERIOD = 100
+TUNE_MAX_PERIOD = 1600
+TUNE_PROBE = 8
+
+
+def median(values) -> float:
+    return float(np.median(np.fromiter(values, float)))
+
+
+def cost_guess(model: mujoco.MjModel, frame_skip: int) -> float:
+    """A first guess of a sub-env's physics time per control step (seconds), to order the work
+    queue until measured times replace it."""
+    evals = 4 if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else 1
+    return frame_skip * evals * model.nv * 1e-6
+
+
+class StepQueue:
+    """The sub-envs of one step, handed out in order to the threads; the thread that finishes
+    the last one (or fails) wakes the caller of :meth:`wait`."""
+
+    __slots__ = ("_done", "_error", "_finished", "_items", "_lock", "_next", "_total")
+
+    def __init__(self, items: list[int]):
+        self._items, self._total = items, len(items)
+        self._next = self._finished = 0
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+        self._error: BaseException | None = None
+        if not items:
+            self._done.set()
+
+    def take(self, limit: int) -> int:
+        """The next sub-env if its queue position is below ``limit``, else -1."""
+        with self._lock:
+            j = self._next
+            if j >= limit or self._error is not None:
+                return -1
+            self._next = j + 1
+        return self._items[j]
+
+    def finish(self) -> None:
+        with self._lock:
+            self._finished += 1
+            if self._finished == self._total:
+                self._done.set()
+
+    def fail(self, error: BaseException) -> None:
+        with self._lock:
+            self._error = error
+        self._done.set()
+
+    def wait(self) -> None:
+        """Return when every sub-env is done; re-raise a helper thread's error."""
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+
+
+_openmp_warned = False
+
+
+def warn_if_openmp_spins() -> None:
+    """Log once per process when torch's OpenMP workers spin (see ``gcnt.OPENMP_SPINS``): they
+    take the cores the physics threads need, which can make a step several times slower."""
+    global _openmp_warned
+    if _openmp_warned or not gcnt.OPENMP_SPINS:
+        return
+    _openmp_warned = True
+    log.warning(
+        "torch was imported before gcnt: torch's OpenMP threads spin long after each op on the "
+        "cores the physics threads use (env steps can be several times slower); import gcnt "
+        "first, or set GOMP_SPINCOUNT=10000 before starting Python"
+    )
+
+
+class ThreadedPhysics:
+    """The stepping half of :class:`~gcnt.envs.base.BatchedMujocoEnv` (a base class of it).
+
+    Reads the env's ``_sims``, ``frame_skip``, ``name``, ``_featurizer``, ``_kinematics`` and
+    writes its per-sub-env ``_reward``, ``_term``, ``_blown`` (``_sq`` holds the actions' Σa²);
+    :meth:`_run_all` steps every (active) sub-env and calls the env's ``_featurize``.
+    """
+
+    def _setup_threads(self, num_threads: int | None) -> None:
+        """Threads: all of them pull sub-envs from one queue, the slowest first."""
+        n = len(self._sims)
+        self._auto = num_threads is None
+        if num_threads is None:
+            try:
+                num_threads = len(os.sched_getaffinity(0))
+            except AttributeError:  # not on Linux
+                num_threads = os.cpu_count() or 1
+        self.num_threads = max(1, min(int(num_threads), n))
+        self._auto = self._auto and self.num_threads > 1
+        if self.num_threads > 1:
+            warn_if_openmp_spins()
+        self._use, self._tick = self.num_threads, 0
+        self._period = TUNE_PERIOD
+        self._probe_at = TUNE_PERIOD
+        self._times = {c: deque(maxlen=TUNE_PROBE) for c in {1, self.num_threads}}
+        #: how many steps ran with how many physics threads
+        self.thread_use: Counter[int] = Counter()
+        # Python lists: the hot loop reads and writes single items, which numpy makes slow.
+        self._cost = [cost_guess(s.model, self.frame_skip) for s in self._sims]
+        self._order = sorted(range(n), key=lambda i: -self._cost[i])
+        self._reserve = max(1, n // 12)  # sub-envs the helpers leave to the calling thread
+        self._pool = (
+            ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix=self.name.lower())
+            if self.num_threads > 1
+            else None
+        )
+        self._featurizer.pool = self._pool
+
+    def _work(self, queue: StepQueue, ctrl: np.ndarray, limit: int) -> None:
+        """One thread's share of a step: take sub-envs from ``queue`` (up to position ``limit``),
+        step them, copy out what the observation needs, and apply the task rules (Python work
+        that overlaps with the other threads' physics)."""
+        try:
+            fs, clock, cost, blown = self.frame_skip, time.perf_counter, self._cost, self._blown
+            sims, gather, kin = self._sims, self._featurizer.gather, self._kinematics
+            reward, term, sq = self._reward, self._term, self._sq
+            qpos_w, qvel_w, qacc_w = (int(w) for w in BLOWUP_WARNINGS)
+            step = mujoco.mj_step
+            take, finish = queue.take, queue.finish
+            while (i := take(limit)) >= 0:
+                s = sims[i]
+                m, d = s.model, s.data
+                s.ctrl[:] = ctrl[s.ctrl_slice]
+                t = clock()
+                step(m, d, fs)
+                cost[i] += 0.2 * (clock() - t - cost[i])
+                w = s.warn
+                if w[qpos_w] or w[qvel_w] or w[qacc_w]:
+                    blown[i] = True
+                    w[BLOWUP_WARNINGS] = 0
+                for fn in kin:
+                    fn(m, d)
+                if s.copies is not None:
+                    for dst, src in s.copies:
+                        dst[...] = src
+                else:
+                    gather(i, d)
+                reward[i], term[i] = s.rules.step(d, sq[i])
+                finish()
+        except BaseException as e:
+            queue.fail(e)
+            raise
+
+    def _threads_now(self) -> int:
+        """How many threads step the physics this time (see ``num_threads`` in the class doc).
+
+        With ``num_threads=None``: now and then, step ``TUNE_PROBE`` times with the other setting
+        (1 thread or all), and switch if its median physics time was 5% lower. The pause between
+        probes doubles (up to ``TUNE_MAX_PERIOD`` steps) while the choice holds.
+        """
+        if not self._auto:
+            return self.num_threads
+        self._tick += 1
+        other = 1 if self._use == self.num_threads else self.num_threads
+        left = self._probe_at - self._tick
+        if 0 <= left < TUNE_PROBE:
+            return other  # probing
+        if left < 0:  # a probe just ended
+            mine, theirs = self._times[self._use], self._times[other]
+            if theirs and mine and median(theirs) < 0.95 * median(mine):
+                self._use, self._period = other, TUNE_PERIOD
+            else:
+                self._period = min(2 * self._period, TUNE_MAX_PERIOD)
+            self._probe_at = self._tick + self._period
+        return self._use
+
+    def _run_all(self, ctrl: np.ndarray, active: np.ndarray | None) -> None:
+        """Step and featurise every (active) sub-env on all threads."""
+        items = self._order if active is None else [i for i in self._order if active[i]]
+        queue = StepQueue(items)
+        threads = self._threads_now()
+        t0 = time.perf_counter()
+        if threads > 1 and len(items) > 1:
+            # Helpers leave the cheapest few sub-envs (queued last) to this thread, so that it
+            # is usually the one to finish and need not wait to be woken up; and it never waits
+            # for a helper that has not started (under CPU contention it just does all the work).
+            limit = len(items) - self._reserve
+            for _ in range(threads - 1):
+                self._pool.submit(self._work, queue, ctrl, limit)
+        self._work(queue, ctrl, len(items))
+        queue.wait()
+        if self._auto:
+            self._times[threads].append(time.perf_counter() - t0)
+        self.thread_use[threads] += 1
+        # One vectorised featurisation of all sub-envs (its cost is per numpy call, not per row).
+        self._featurize()
+        cost = self._cost
+        self._order = sorted(range(len(cost)), key=cost.__getitem__, reverse=True)
