@@ -31,7 +31,7 @@ SMALL: dict[str, dict] = {
     "gcnt": {**_TRANSFORMER_SMALL, "gcn_width": 4, "gcn_layers": 2, "hn_width": 8},
     "amorpheus": dict(_TRANSFORMER_SMALL),
     "swat": {**_TRANSFORMER_SMALL, "traversal_widths": (5, 5, 6)},
-    "smp": {"msg_dim": 8, "hidden": 12},
+    "smp": {"msg_dim": 8, "hidden": 12, "head_hidden": (16,)},
     "mlp": {"hidden": (32, 32)},
     "sr": {"hidden": (32, 32)},
     "metamorph": dict(_TRANSFORMER_SMALL),

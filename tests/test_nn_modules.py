@@ -287,3 +287,14 @@ def test_smp_up_messages_see_only_the_subtree():
 
     for i in range(8):
         assert set(depends[i].nonzero().flatten().tolist()) == subtree(i)
+
+
+def test_one_distance_table_shared_by_all_layers_by_default():
+    """Eq. 5: one g_φ(d) per head, used by every layer; per-layer tables are an option."""
+    table = table_of(robots())
+    kw = dict(table=table, obs_dim=F_OBS, num_actions=1, layers=3, heads=2)
+    shared = make_network("gcnt", "td3_actor", **kw)
+    per_layer = make_network("gcnt", "td3_actor", dist_bias="per_layer", **kw)
+    assert shared["dist_bias"].module.embed.weight.shape == (16, 2)
+    assert per_layer["dist_bias"].module.embed.weight.shape == (16, 3 * 2)
+    assert shared["transformer"].module.encoder.bias_mode == "shared"

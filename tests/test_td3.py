@@ -51,8 +51,8 @@ def tiny(path, run_dir, *extra, frames=None):
     return recipe
 
 
-def test_training_td_target_on_a_terminated_and_a_truncated_row():
-    """The target training uses (``td_target``), float64: a truncated row bootstraps from the
+def test_robot_mean_td_target_on_a_terminated_and_a_truncated_row():
+    """The ``robot_mean`` rule of ``td_target``, float64: a truncated row bootstraps from the
     mean over real limbs of min(Q1', Q2'); a terminated row is the reward alone; padding (limb 2)
     never enters. torchrl's TD(0) estimator with the same per-robot value agrees."""
     q1 = torch.tensor([[1.0, 2.0, 100.0], [4.0, 8.0, -50.0]], dtype=torch.float64).unsqueeze(-1)
@@ -60,7 +60,7 @@ def test_training_td_target_on_a_terminated_and_a_truncated_row():
     mask = torch.tensor([[1, 1, 0], [1, 1, 0]]).bool()
     reward = torch.tensor([[1.0], [2.0]], dtype=torch.float64)
     terminated = torch.tensor([[False], [True]])  # row 0: truncated (done, not terminated)
-    target = td_target(reward, terminated, (q1, q2), mask, 0.5)
+    target = td_target(reward, terminated, (q1, q2), mask, 0.5, "robot_mean")
     assert target.dtype == torch.float64 and target.shape == (2, 1)
     # row 0: min per limb (1, 0.5) -> mean 0.75; row 1: the reward alone
     assert target.flatten().tolist() == [1.0 + 0.5 * 0.75, 2.0]
@@ -104,7 +104,11 @@ def test_every_recipe_trains_a_few_steps(path, tmp_path):
 
 @pytest.mark.parametrize("method", ["amorpheus", "swat", "smp", "gcnt_no_dist", "mlp"])
 def test_methods_selectable_by_override(method, tmp_path):
-    recipe = tiny(ROOT / "recipes/smpenv/walker.yaml", tmp_path / "run", f"network.name={method}")
+    # SR's MLP is one network per robot: it trains one robot (several are refused)
+    one = ["env.robots=[walker_7_main]"] if method == "mlp" else []
+    recipe = tiny(
+        ROOT / "recipes/smpenv/walker.yaml", tmp_path / "run", f"network.name={method}", *one
+    )
     if method in ("smp", "mlp"):
         recipe.network.kwargs = {}
     run = RunDir(recipe.run_dir)

@@ -171,8 +171,13 @@ def algorithm_section(name: str) -> type:
 
 @dataclass
 class Recipe:
-    #: the experiment's label, used in run names and W&B project/group (e.g. Walker++)
+    #: the experiment's label, used in run names and W&B project/group (e.g. Walker++); runs of
+    #: the same task are drawn in the same panel by ``gcnt curves``
     task: str = "custom"
+    #: the name the runs are shown under in curves and tables, and the method part of sweep run
+    #: ids (e.g. SR-fair, SR-top: two recipes of the same network told apart); unset: the
+    #: network's name
+    label: str | None = None
     #: the learning algorithm: td3 | ppo; its settings are in the section of the same name
     algo: str = "td3"
     seed: int = 0
@@ -234,6 +239,9 @@ class Recipe:
         if self.eval.episodes < 0 or self.eval.interval < 0:
             raise ValueError("eval.episodes and eval.interval must be >= 0")
         _check_device(self.device)
+        if self.label is not None and not self.label.strip():
+            raise ValueError("label must not be empty (leave it out to show the network's name)")
+        self._check_single_robot_network()
         # relations between the active algorithm's settings and the shared ones
         relations = getattr(self.sections.get(self.algo), "check_recipe", None)
         if callable(relations):
@@ -245,6 +253,21 @@ class Recipe:
                         f"compile.{key}=true needs a CUDA device; this recipe has "
                         f"device={self.device!r}"
                     )
+
+    def _check_single_robot_network(self) -> None:
+        """SR's flat MLP is one network per robot: refuse it on several robots (it would train
+        one shared MLP over padded inputs). Recipes written by a run (``resolved`` set) are what
+        was trained, and stay readable."""
+        name = self.network.name
+        if name not in SINGLE_ROBOT_NETWORKS or self.resolved or not self.env.robots:
+            return
+        n = count_robots(self.env.robots)
+        if n > 1:
+            raise ValueError(
+                f"network {name!r} is one MLP per robot, but env.robots names {n} robots; train "
+                f"one run per robot with `gcnt sweep RECIPE --per-robot SPLIT` (e.g. --per-robot "
+                f"{_split_hint(self.env.robots)}), or set env.robots to one robot"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -268,6 +291,24 @@ class Recipe:
 
 
 # ----------------------------------------------------------------------------- validation
+
+#: networks that are one model per robot (a flat MLP over one robot's padded limbs: paper SR)
+SINGLE_ROBOT_NETWORKS = ("sr", "mlp")
+
+
+def count_robots(specs: list[str]) -> int:
+    """How many robots ``specs`` name, resolved as the run resolves them (a bad spec counts as
+    one robot: training reports it)."""
+    from gcnt.morphology import resolve_robots
+
+    try:
+        return len(resolve_robots(list(specs)))
+    except Exception:  # noqa: BLE001 - an unknown robot or file: the run names it
+        return len(specs)
+
+
+def _split_hint(specs: list[str]) -> str:
+    return ",".join(specs) if len(specs) > 1 else specs[0]
 
 
 def _check_device(device: str) -> None:
@@ -448,12 +489,9 @@ def _yaml_problem(e: yaml.YAMLError) -> str:
     return f"{problem}{where}"
 
 
-def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
-    """Load a recipe file, apply ``section.key=value`` overrides, validate everything.
-
-    A recipe may start from another with ``base: relative/path.yaml``; its keys override the
-    base's, section by section.
-    """
+def read_recipe_file(path: str | Path) -> dict[str, Any]:
+    """A recipe file's mapping with its bases merged in, not yet validated (``load_recipe`` is
+    ``recipe_from_dict(read_recipe_file(path), overrides, source=path)``)."""
     path = Path(path)
     data = _read_yaml(path)
     if not data:
@@ -461,7 +499,16 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
             f"{path}: the recipe is empty; it must say at least what to train on (env.robots), "
             "e.g. start from recipes/quickstart.yaml or write base: <a recipe>"
         )
-    return recipe_from_dict(data, overrides, source=str(path))
+    return data
+
+
+def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
+    """Load a recipe file, apply ``section.key=value`` overrides, validate everything.
+
+    A recipe may start from another with ``base: relative/path.yaml``; its keys override the
+    base's, section by section.
+    """
+    return recipe_from_dict(read_recipe_file(path), overrides, source=str(path))
 
 
 def save_recipe(recipe: Recipe, path: str | Path) -> None:

@@ -1,8 +1,13 @@
 """Sweeps: a grid of recipes x methods x seeds, run as ``gcnt train`` subprocesses.
 
 Every run gets an explicit ``run_dir=<sweep>/<task>/<algo>-<method>/seed<N>``, the sweep's W&B
-group and a readable W&B name. A manifest (``<sweep>/manifest.json``) lists every run, its command
-and its state; running the sweep again skips finished runs and resumes unfinished ones from their
+group and a readable W&B name. With ``per_robot`` (``gcnt sweep --per-robot SPLIT``: single-robot
+baselines such as SR) every robot of the split is a run of its own, trained alone
+(``env.robots=[ROBOT] env.test_robots=[]``), under ``<task>/<algo>-<method>/<robot>/seed<N>``; a
+recipe's ``label`` (e.g. SR-fair) takes the method's place in the run id.
+
+A manifest (``<sweep>/manifest.json``) lists every run, its command and its state (and, per-robot,
+its robot); running the sweep again skips finished runs and resumes unfinished ones from their
 checkpoints (``gcnt train --resume RUN_DIR``). After training, evaluations (``gcnt eval RUN_DIR
 --robots SPEC``) can follow in the same slot.
 
@@ -33,9 +38,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gcnt.analysis.runs import CHECKPOINT, RECIPE_FILE, Run
+
+if TYPE_CHECKING:
+    from gcnt.recipes import Recipe
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +97,8 @@ class RunSpec:
     finished: str | None = None
     job_id: str | None = None
     seconds: float | None = None
+    #: the one robot this run trains (``--per-robot``); None: the recipe's robots
+    robot: str | None = None
 
     def refresh(self) -> None:
         """Set the training state from the run directory (not for a run in progress)."""
@@ -163,6 +173,36 @@ def _split_method_overrides(
     return per
 
 
+def per_robot_runs(split: str | Sequence[str]) -> list[tuple[str, str]]:
+    """(robot name, spec to train it alone) for each robot of ``split``: a robot spec as
+    ``env.robots`` takes it (``Unimal:train``, ``CWHH++:test``, a robot name, an .xml file or
+    folder), or several, comma-separated or as a list."""
+    from gcnt.morphology import resolve_robots
+    from gcnt.morphology.catalogues import robot_catalogue
+
+    specs = [t.strip() for t in split.split(",")] if isinstance(split, str) else list(split)
+    specs = [s for s in specs if s]
+    if not specs:
+        raise SweepError("--per-robot: give a robot split, e.g. Unimal:train")
+    try:
+        robots = resolve_robots(specs)
+    except (ValueError, OSError) as e:
+        raise SweepError(f"--per-robot {','.join(specs)}: {e}") from None
+    # a catalogue robot by its name; a robot loaded from a file by that file
+    return [(r.name, r.name if robot_catalogue(r.name) else r.source) for r in robots]
+
+
+def robot_overrides(spec: str) -> list[str]:
+    """The overrides that train one robot alone (JSON strings are YAML scalars: paths quoted)."""
+    return [f"env.robots=[{json.dumps(spec)}]", "env.test_robots=[]"]
+
+
+def _sets_robots(override: str) -> bool:
+    split = _method_override(override)
+    key = (split[1] if split else override).split("=", 1)[0].strip()
+    return key in ("env.robots", "env.test_robots", "env")
+
+
 def expand(
     recipes: Sequence[str | Path],
     sweep_dir: str | Path,
@@ -173,68 +213,111 @@ def expand(
     evals: Sequence[str] = (),
     eval_episodes: int = 100,
     group: str | None = None,
+    per_robot: str | Sequence[str] | None = None,
 ) -> list[RunSpec]:
-    """The runs of recipes x methods x seeds (default: each recipe's own method and seed).
+    """The runs of recipes x methods x [robots] x seeds (default: each recipe's own method and
+    seed). With ``per_robot`` (a robot split, see :func:`per_robot_runs`), one run per robot of
+    the split, each trained alone.
 
     Each combination is loaded and validated now, so that a bad recipe or override fails before
     anything runs (a :class:`SweepError` naming it).
     """
-    from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.recipes import RecipeError, read_recipe_file, recipe_from_dict
 
     sweep_dir = Path(sweep_dir).resolve()
     group = group or sweep_dir.name
+    robots: list[tuple[str | None, list[str]]] = [(None, [])]
+    if per_robot is not None:
+        if bad := [o for o in overrides if _sets_robots(o)]:
+            raise SweepError(
+                f"--per-robot sets env.robots and env.test_robots of every run; drop {bad[0]!r}"
+            )
+        if "test" in evals:
+            raise SweepError("--per-robot runs have no test robots: --eval test evaluates nothing")
+        robots = [(name, robot_overrides(spec)) for name, spec in per_robot_runs(per_robot)]
     specs: list[RunSpec] = []
     seen: dict[str, str] = {}
     for recipe_path in recipes:
         recipe_path = Path(recipe_path)
         if not recipe_path.is_file():
             raise SweepError(f"{recipe_path}: no such recipe file")
+        source = str(recipe_path)
         try:
-            base = load_recipe(recipe_path, _plain(overrides))
+            data = read_recipe_file(recipe_path)  # read once: a per-robot sweep loads it often
+            base = recipe_from_dict(data, [*_plain(overrides), *robots[0][1]], source)
         except RecipeError as e:
             raise SweepError(str(e)) from None
         ms = list(methods or [base.network.name])
         per_method = _split_method_overrides(overrides, ms)
         for m in ms:
-            for s in seeds if seeds is not None else [base.seed]:
-                try:
-                    r = load_recipe(recipe_path, [*per_method[m], f"network.name={m}", f"seed={s}"])
-                except RecipeError as e:
-                    raise SweepError(str(e)) from None
-                task, algo = str(r.task or "custom"), str(r.algo)
-                run_id = f"{slug(task)}/{algo}-{m}/seed{s}"
-                if run_id in seen:
-                    raise SweepError(
-                        f"{recipe_path} and {seen[run_id]} give the same run {run_id}: "
-                        "give the recipes different task names (task=...)"
-                    )
-                seen[run_id] = str(recipe_path)
-                run_dir = sweep_dir / run_id
-                name = f"{task}-{algo}-{m}-seed{s}"
-                specs.append(
-                    RunSpec(
-                        id=run_id,
-                        run_dir=str(run_dir),
-                        recipe=str(recipe_path.resolve()),
-                        task=task,
-                        algo=algo,
-                        method=m,
-                        seed=int(s),
-                        overrides=[
-                            *per_method[m],
-                            f"network.name={m}",
-                            f"seed={s}",
-                            f"run_dir={run_dir}",
-                            f"logger.group={group}",
-                            f"logger.name={name}",
-                        ],
-                        evals=list(evals),
-                        eval_episodes=eval_episodes,
-                    )
-                )
+            for robot, robot_ovr in robots:
+                for s in seeds if seeds is not None else [base.seed]:
+                    given = [*per_method[m], *robot_ovr, f"network.name={m}", f"seed={s}"]
+                    try:
+                        r = recipe_from_dict(data, given, source)
+                    except RecipeError as e:
+                        raise SweepError(str(e)) from None
+                    spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
+                    spec.evals, spec.eval_episodes = list(evals), eval_episodes
+                    specs.append(spec)
     if not specs:
         raise SweepError("the sweep has no runs (no recipes?)")
     return specs
+
+
+def _spec(
+    recipe_path: Path,
+    r: Recipe,
+    method: str,
+    robot: str | None,
+    given: list[str],
+    sweep_dir: Path,
+    group: str,
+    seen: dict[str, str],
+) -> RunSpec:
+    task, algo, seed = str(r.task or "custom"), str(r.algo), int(r.seed)
+    shown = slug(r.label) if r.label else method
+    run_id = f"{slug(task)}/{algo}-{shown}/{'' if robot is None else slug(robot) + '/'}seed{seed}"
+    if run_id in seen:
+        raise SweepError(
+            f"{recipe_path} and {seen[run_id]} give the same run {run_id}: "
+            "give the recipes different task names (task=...) or labels (label=...)"
+        )
+    seen[run_id] = str(recipe_path)
+    run_dir = sweep_dir / run_id
+    name = "-".join([task, algo, r.label or method, *([robot] if robot else []), f"seed{seed}"])
+    return RunSpec(
+        id=run_id,
+        run_dir=str(run_dir),
+        recipe=str(recipe_path.resolve()),
+        task=task,
+        algo=algo,
+        method=method,
+        seed=seed,
+        overrides=[*given, f"run_dir={run_dir}", f"logger.group={group}", f"logger.name={name}"],
+        robot=robot,
+    )
+
+
+def default_dir(
+    recipes: Sequence[str | Path],
+    overrides: Sequence[str] = (),
+    per_robot: str | Sequence[str] | None = None,
+) -> Path:
+    """``sweeps/<task>`` (the recipes' tasks joined by ``-``)."""
+    from gcnt.recipes import RecipeError, load_recipe
+
+    given = _plain(overrides)
+    if per_robot is not None:  # a single-robot recipe on its first robot
+        given += robot_overrides(per_robot_runs(per_robot)[0][1])
+    tasks = []
+    for r in recipes:
+        try:
+            rec = load_recipe(r, given)
+        except RecipeError as e:
+            raise SweepError(str(e)) from None
+        tasks.append(slug(str(rec.task or "x")))
+    return Path("sweeps") / "-".join(dict.fromkeys(tasks))
 
 
 def _plain(overrides: Sequence[str]) -> list[str]:

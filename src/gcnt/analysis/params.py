@@ -23,6 +23,12 @@ the numbers reveal it:
   original Obstacles world feeds a wider observation. Here both worlds have the same height map.
 * SMPENV (table 7) is about half of one AMORPHEUS actor (202,389 vs 400,404 here) and its method
   deltas look like partial counts (SWAT − AMORPHEUS = 8 = the relational bias Linear(3→2) only).
+* SMP (table 7: 694,410) is twice an actor: the original code (``huangwl18/modular-rl``) registers
+  each module under two names for torchfold, so its ``state_dict`` lists every tensor twice, and
+  2 × 347,205 (its both-way actor with 4 child slots, as on any set with humanoids, and a 20-wide
+  limb input) is exactly the paper's number. The original's actor has 323,781 parameters with 2
+  child slots (Walker++) and 347,141 with 4, at the real 19-wide input; gcnt's sums the children's
+  messages (one slot) and has 312,101 (:data:`SMP_ORIGINAL_ACTOR`).
 """
 
 from __future__ import annotations
@@ -54,6 +60,8 @@ METHODS = {
     ),
     "unimal": ("metamorph", "metamorph_star", "modumorph", "gcnt", "gcnt_hn", "sr"),
 }
+#: the original SMP code's both-way actor (F = 19, message 32), by number of child slots
+SMP_ORIGINAL_ACTOR = {2: 323_781, 4: 347_141}
 #: the algorithm whose actor/critic the paper trains on each benchmark
 ALGORITHM = {"smpenv": "td3", "unimal": "ppo"}
 #: which of our counts the paper's number is closest to: UNIMAL's are actor + critic; SMPENV's

@@ -36,6 +36,8 @@ METHOD_ORDER = (
     "smp",
     "mlp",
 )
+#: single-robot references, listed after every other method (paper figure 7's SR lines)
+REFERENCE_ORDER = ("sr", "SR-fair", "SR-top")
 
 
 class AnalysisError(ValueError):
@@ -112,6 +114,12 @@ class Run:
         return str(_get(self.recipe, "network", "name", default="?"))
 
     @property
+    def label(self) -> str:
+        """The name the run is shown under: the recipe's ``label`` (e.g. SR-fair), else the
+        method."""
+        return str(self.recipe.get("label") or self.method)
+
+    @property
     def seed(self) -> int:
         return int(self.recipe.get("seed") or 0)
 
@@ -132,6 +140,23 @@ class Run:
     @property
     def test_robot_specs(self) -> list[str]:
         return list(_get(self.recipe, "env", "test_robots", default=[]) or [])
+
+    @cached_property
+    def single_robot(self) -> str | None:
+        """The one robot the run trains, when its recipe names exactly one robot (a catalogue
+        name or an .xml file: ``gcnt sweep --per-robot``); None for a robot set."""
+        specs = self.train_robot_specs
+        if len(specs) != 1 or not isinstance(specs[0], str):
+            return None
+        spec = specs[0]
+        if spec.endswith(".xml"):
+            return Path(spec).stem
+        from gcnt.morphology.catalogues import robot_catalogue
+
+        try:
+            return spec if robot_catalogue(spec) is not None else None
+        except Exception:  # noqa: BLE001 - an unreadable catalogue: not known as one robot
+            return None
 
     # --- metrics
     def metrics(self) -> list[dict[str, Any]]:
@@ -253,14 +278,16 @@ def first_seed_per_method(runs: Sequence[Run]) -> list[Run]:
 
 
 def method_key(method: str) -> tuple[int, str]:
+    if method in REFERENCE_ORDER:
+        return (len(METHOD_ORDER) + 1 + REFERENCE_ORDER.index(method), method)
     return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), method)
 
 
 def method_labels(runs: Sequence[Run]) -> dict[Path, str]:
-    """The name a run's method is shown under: the method, prefixed by the algorithm when the
-    runs mix algorithms (``ppo:gcnt``)."""
+    """The name a run's method is shown under: the recipe's ``label`` if it has one (SR-fair),
+    else the method; prefixed by the algorithm when the runs mix algorithms (``ppo:gcnt``)."""
     mixed = len({r.algo for r in runs}) > 1
-    return {r.path: f"{r.algo}:{r.method}" if mixed else r.method for r in runs}
+    return {r.path: f"{r.algo}:{r.label}" if mixed else r.label for r in runs}
 
 
 def mean_stderr(values: Sequence[float]) -> tuple[float, float]:

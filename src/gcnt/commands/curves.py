@@ -1,8 +1,11 @@
 """``gcnt curves DIR...``: learning curves (paper figures 6, 7, 9) from run directories.
 
 One panel per task, one line per method: mean ± standard error over seeds against environment
-steps, seeds aggregated at equal step counts by interpolation. Writes ``curves.png`` and
-``curves.csv`` (to ``--out``, default ``<DIR>/figures``).
+steps, seeds aggregated at equal step counts by interpolation. Per-robot runs (``gcnt sweep
+--per-robot``: SR-fair, SR-top) are averaged over the robots of each seed first; a recipe's
+``label`` names its line. Several directories go into the same figure (e.g. a world's universal
+sweep and its SR sweep). Writes ``curves.png`` and ``curves.csv`` (to ``--out``, default
+``<DIR>/figures``).
 """
 
 from __future__ import annotations
@@ -36,12 +39,13 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or default_out(args.paths)
     png = plot_curves(rows, out / f"{args.name}.png", args.metric)
     csv = write_csv(rows, out / f"{args.name}.csv")
-    groups = sorted({(r["task"], r["method"], r["seeds"]) for r in rows})
-    for task, method, seeds in groups:
+    groups = list(dict.fromkeys((r["task"], r["method"], r["seeds"], r["robots"]) for r in rows))
+    for task, method, seeds, robots in groups:
         last = [r for r in rows if r["task"] == task and r["method"] == method][-1]
         se = f" ± {last['stderr']:.1f}" if last["stderr"] == last["stderr"] else ""
+        per = f" x {robots} robots" if robots > 1 else ""
         print(
-            f"{task:<12} {method:<14} seeds {seeds}  at {last['env_steps']:>9} steps: "
+            f"{task:<12} {method:<14} seeds {seeds}{per}  at {last['env_steps']:>9} steps: "
             f"{last['mean']:.1f}{se}"
         )
     print(f"written: {png}\nwritten: {csv}")

@@ -9,7 +9,14 @@ from __future__ import annotations
 
 import argparse
 
-from gcnt.analysis.params import ALGORITHM, COMPARED, count_table, ratios, setup_of
+from gcnt.analysis.params import (
+    ALGORITHM,
+    COMPARED,
+    SMP_ORIGINAL_ACTOR,
+    count_table,
+    ratios,
+    setup_of,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,6 +58,16 @@ def run(args: argparse.Namespace) -> int:
         for label, (ours, theirs) in ratios(rows, world).items():
             t = f"{theirs:.3f}" if theirs else "-"
             print(f"{label} (actor + critic): {ours:.3f} here, {t} in the paper")
+    smp = next((r for r in rows if r["method"] == "smp"), None)
+    if smp is not None and setup.benchmark == "smpenv":
+        ratios_smp = ", ".join(
+            f"{smp['actor'] / n:.3f} of {n:,} ({c} child slots)"
+            for c, n in SMP_ORIGINAL_ACTOR.items()
+        )
+        print(
+            f"SMP actor against the original code's actor: {ratios_smp}; the paper's "
+            "694,410 counts each original tensor twice (see gcnt.analysis.params)"
+        )
     print(
         "\npaper: appendix table 7 (SMPENV) / 8 (UNIMAL); it does not say what it counts "
         "(see `gcnt params --help` and this command's module docstring)."

@@ -6,7 +6,8 @@ submitit. Running the same command again (or ``gcnt sweep SWEEP_DIR``) skips fin
 resumes unfinished ones. ``--eval test`` evaluates each trained run on its test robots.
 
 Overrides apply to every run; ``METHOD:key=value`` to one method only
-(e.g. ``swat:network.kwargs.max_limbs=16``).
+(e.g. ``swat:network.kwargs.max_limbs=16``). ``--per-robot SPLIT`` makes one run per robot of the
+split, each trained alone (single-robot baselines: SR-fair, SR-top).
 """
 
 from __future__ import annotations
@@ -45,7 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "  gcnt sweep sweeps/walkerpp                  # resume: skip done, resume partial\n"
         "  gcnt sweep sweeps/walkerpp --status\n"
         "  gcnt sweep recipes/smpenv/cwhh.yaml --seeds 0-3 --slurm --partition gpu \\\n"
-        "      --gpus-per-run 1 --cpus-per-run 8 --time 2880"
+        "      --gpus-per-run 1 --cpus-per-run 8 --time 2880\n"
+        "  gcnt sweep recipes/unimal/sr_fair.yaml --per-robot Unimal:train --seeds 0-3 \\\n"
+        "      --dir sweeps/unimal-ft-sr                # one SR run per training robot"
     )
     p.add_argument(
         "items",
@@ -61,6 +64,13 @@ def _options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--methods", type=_csv, help="comma-separated methods (default: the recipe's)")
     p.add_argument("--seeds", type=_seeds, help="seeds: 0,1,2 or 0-2 (default: the recipe's)")
     p.add_argument("--dir", type=Path, help="sweep directory (default: sweeps/<task>)")
+    p.add_argument(
+        "--per-robot",
+        metavar="SPLIT",
+        help="one run per robot of SPLIT (Unimal:train, a robot, robot1,robot2, ...), each "
+        "trained alone: env.robots=[ROBOT] env.test_robots=[]; run ids "
+        "<task>/<algo>-<method or the recipe's label>/<robot>/seed<N>",
+    )
     p.add_argument("--group", help="W&B group of all runs (default: the sweep directory's name)")
     p.add_argument(
         "--eval",
@@ -127,22 +137,23 @@ def run(args: argparse.Namespace) -> int:
         Manifest,
         SweepError,
         SweepLock,
+        default_dir,
         default_jobs,
         expand,
         now,
         run_local,
         run_submitit,
-        slug,
     )
 
     recipes, overrides = _split_items(args.items)
     try:
         if len(recipes) == 1 and Path(recipes[0]).is_dir():
             sweep_dir = Path(recipes[0])
-            if overrides or args.methods or args.seeds:
+            if overrides or args.methods or args.seeds or args.per_robot:
                 raise SweepError(
                     f"{sweep_dir}: a sweep directory is continued as it was set up; give recipes "
-                    "to add runs (overrides, --methods and --seeds apply to new runs only)"
+                    "to add runs (overrides, --methods, --seeds and --per-robot apply to new runs "
+                    "only)"
                 )
             manifest = Manifest.load(sweep_dir)
             if args.eval:
@@ -156,16 +167,7 @@ def run(args: argparse.Namespace) -> int:
             if not recipes:
                 raise SweepError("give at least one recipe file (or a sweep directory)")
             if args.dir is None:
-                from gcnt.recipes import RecipeError, load_recipe
-
-                tasks = []
-                for r in recipes:
-                    try:
-                        rec = load_recipe(r)
-                    except RecipeError as e:
-                        raise SweepError(str(e)) from None
-                    tasks.append(slug(str(rec.task or "x")))
-                args.dir = Path("sweeps") / "-".join(dict.fromkeys(tasks))
+                args.dir = default_dir(recipes, overrides, args.per_robot)
             sweep_dir = args.dir
             specs = expand(
                 recipes,
@@ -176,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
                 evals=args.eval,
                 eval_episodes=args.episodes,
                 group=args.group,
+                per_robot=args.per_robot,
             )
             if (sweep_dir / MANIFEST).is_file():
                 manifest = Manifest.load(sweep_dir)

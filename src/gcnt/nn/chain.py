@@ -48,6 +48,8 @@ class NetIO:
     #: width of the encoded height map ``hfield_embed`` the decoder must join to every limb's
     #: features (0: no height map). Pass it to ``limb_head_stage(..., hfield_width=...)``.
     hfield_width: int = 0
+    #: width A of the limb action at the end of ``limbs/input`` (TD3 critics; 0 otherwise)
+    action_dim: int = 0
 
 
 @dataclass
@@ -107,7 +109,8 @@ def io_for(role: str, obs_dim: int, num_actions: int, hfield_dim: int) -> NetIO:
     """The widths of ``role``'s backbone (TD3 critics read obs ‖ action)."""
     in_dim = obs_dim + (num_actions if role == "td3_critic" else 0)
     out_dim = num_actions if role in ("td3_actor", "ppo_actor") else 1
-    return NetIO(in_dim, out_dim, HFIELD_WIDTH if hfield_dim else 0)
+    action_dim = num_actions if role == "td3_critic" else 0
+    return NetIO(in_dim, out_dim, HFIELD_WIDTH if hfield_dim else 0, action_dim)
 
 
 def graph_lookup_of(chain: TensorDictModuleBase) -> GraphLookup:

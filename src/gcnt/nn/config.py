@@ -20,6 +20,8 @@ from gcnt.morphology import GLOBAL_LIMB_TYPES
 from gcnt.suggest import did_you_mean
 
 PRESETS = ("smpenv", "unimal")
+#: the init schemes of :mod:`gcnt.nn.init` (kept here so that configs load without torch)
+INIT_SCHEMES = ("amorpheus", "metamorph", "torch")
 
 
 def unknown_name_error(kind: str, name: str, known: list[str] | tuple[str, ...]) -> ValueError:
@@ -86,16 +88,22 @@ class TransformerConfig(NetConfig):
     norm_first: bool = False  # False: post-LN (AMORPHEUS, SWAT, GCNT); True: pre-LN (MetaMorph)
     final_norm: bool = True
     input_scale: bool = True  # multiply the input embedding by √d_model
+    #: initial weights (:mod:`gcnt.nn.init`): "amorpheus" (the AMORPHEUS/SWAT code: embedding
+    #: and last decoder layer U(±0.1), decoder bias 0), "metamorph" (the MetaMorph/ModuMorph
+    #: code: embedding U(±0.1), last decoder layer U(±0.01), bias 0) or "torch" (defaults)
+    init: str = "amorpheus"
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
         "smpenv": {},
-        # MetaMorph* backbone sizes on UNIMAL (GCNT appendix table 3)
-        "unimal": {"layers": 5, "ff": 1024},
+        # MetaMorph* backbone sizes on UNIMAL (GCNT appendix table 3), MetaMorph's init
+        "unimal": {"layers": 5, "ff": 1024, "init": "metamorph"},
     }
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _positive(self, "d_model", "layers", "heads", "ff")
+        if self.init not in INIT_SCHEMES:
+            raise unknown_name_error("init scheme", self.init, list(INIT_SCHEMES))
         if self.d_model % self.heads:
             raise ValueError(
                 f"{type(self).__name__}: d_model {self.d_model} is not divisible by heads "
@@ -150,8 +158,9 @@ class GCNTConfig(TransformerConfig):
     num_limb_types: int = len(GLOBAL_LIMB_TYPES)
     #: hop distances are clamped to this before the bias lookup (table of max_dist + 1 rows)
     max_dist: int = 15
-    #: "per_layer": one bias table per layer (default); "shared": one table for all layers
-    dist_bias: str = "per_layer"
+    #: "shared": one bias table g_φ(d) used by every layer (the paper's eq. 5, whose parameter
+    #: counts also fit one table; default); "per_layer": one table per layer
+    dist_bias: str = "shared"
     #: hidden widths of the limb-observation MLP; () = one Linear(F→d) (scaled by √d if
     #: input_scale), the SWAT/AMORPHEUS encoder GCNT was built on
     encoder_hidden: tuple[int, ...] = ()
@@ -173,6 +182,7 @@ class GCNTConfig(TransformerConfig):
             "gcn_width": 23,
             "norm_first": True,
             "final_norm": False,
+            "init": "metamorph",
         },
     }
 
@@ -200,8 +210,12 @@ class MetaMorphConfig(TransformerConfig):
     embed_dropout: float = 0.1
     #: rows of the position table: the most limbs a robot may have (UNIMAL pads to 12)
     max_limbs: int = 12
+    init: str = "metamorph"
 
-    PRESETS: ClassVar[dict[str, dict[str, Any]]] = TransformerConfig.PRESETS
+    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
+        "smpenv": {},
+        "unimal": {"layers": 5, "ff": 1024},
+    }
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -244,16 +258,21 @@ class ModuMorphConfig(TransformerConfig):
 
 @dataclass
 class SMPConfig(NetConfig):
-    """SMP (Huang et al. 2020): bottom-up then top-down message passing on the limb tree."""
+    """SMP (Huang et al. 2020): bottom-up then top-down message passing on the limb tree, at the
+    original code's sizes (message 32, bottom-up width 64, 400 → 300 output and message MLPs)."""
 
     msg_dim: int = 32
+    #: width of the bottom-up module's hidden layers
     hidden: int = 64
+    #: hidden widths of the top-down MLPs (down-message, action or Q), the original's MLPBase
+    head_hidden: tuple[int, ...] = (400, 300)
     #: L2-normalise messages (as the SMP code does)
     normalize_messages: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _positive(self, "msg_dim", "hidden")
+        self.head_hidden = tuple(self.head_hidden)
 
 
 @dataclass

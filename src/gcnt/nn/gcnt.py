@@ -5,7 +5,7 @@
     limbs/input ─ encoder (Linear F→d, ·√d) ───────────────────────┐
     limbs/type, graph/adj ─ gcn (one-hot → width, 4 residual GCN) ─┤ fusion: + Linear([GCN ‖ WL] → d)
     graph/wl ──────────────────────────────────────────────────────┘
-    graph/dist ─ dist_bias (Embedding(clamped hop distance) → one bias per head per layer)
+    graph/dist ─ dist_bias (Embedding(clamped hop distance) → one bias per head, every layer)
     → transformer (post-LN encoder layers, bias added to q·k/√d_h, padded keys masked, final LN)
     → head: [output ‖ limbs/input (‖ height-map embedding)] → (64 →) out, per limb
 
@@ -15,10 +15,17 @@ Choices the paper leaves open, made here:
   encoder of the codebase GCNT was built on; set ``encoder_hidden`` for a deeper MLP.
 * **Transformer**: post-LN with a final LayerNorm, as AMORPHEUS/SWAT (GCNT was implemented on
   SWAT's code); ``norm_first=True`` gives pre-LN.
-* **Distance bias**: one zero-initialised embedding table per layer (``dist_bias="per_layer"``;
-  "shared" uses one for all layers), over hop distances clamped to ``max_dist``; zero init means
-  training starts from the plain Transformer.
+* **Distance bias**: one zero-initialised embedding table g_φ(d), one value per head, added to
+  the attention logits of every layer (``dist_bias="shared"``, the paper's eq. 5 and the size its
+  UNIMAL parameter count fits); ``dist_bias="per_layer"`` gives each layer its own table. Hop
+  distances are clamped to ``max_dist``; zero init means training starts from the plain
+  Transformer.
 * **WL counts** enter raw (counts, not frequencies), as the paper describes.
+* **Initial weights** as the code GCNT was built on (:mod:`gcnt.nn.init`): on SMPENV the
+  AMORPHEUS/SWAT code's (embedding and last decoder layer U(±0.1), decoder bias 0), on UNIMAL the
+  ModuMorph code's (embedding U(±0.1), last decoder layer U(±0.01), bias 0). The fusion
+  projection, added to the token embedding, is initialised as the embedding; the GCN keeps
+  PyTorch's defaults.
 * **GCNT+HN** (``hypernet=True``): the encoder and the decoder become ModuMorph's hypernetwork
   layers (per-limb weights generated from ``limbs/context``); the decoder keeps GCNT's input
   [output ‖ limbs/input (‖ height map)]. Everything else is GCNT's.
@@ -31,6 +38,7 @@ from tensordict import TensorDictBase
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import GCNTConfig
+from gcnt.nn.init import init_like_original
 from gcnt.nn.stages import (
     context_stage,
     context_width,
@@ -49,6 +57,7 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     """GCNT's stages from ``limbs/input`` to ``limbs/out`` (WL width read from the table)."""
     stages = []
     static = []
+    embeddings = []  # what the init scheme treats as the token embedding
     hyper = 0
     if cfg.hypernet:
         ctx_dim = context_width(table, "GCNT+HN")
@@ -61,6 +70,7 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     else:
         encoder = limb_encoder_stage(io.in_dim, cfg.d_model, cfg.encoder_hidden, cfg.input_scale)
         stages.append(("encoder", encoder))
+        embeddings.append(encoder.module)
     if cfg.use_gcn:
         stages.append(("gcn", gcn_stage(cfg.num_limb_types, cfg.gcn_width, cfg.gcn_layers)))
         static += [K.TYPE, K.ADJ]
@@ -70,7 +80,9 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     if cfg.use_gcn or cfg.use_wl:
         gw = cfg.gcn_width if cfg.use_gcn else 0
         wl_dim = table.get(K.WL).shape[-1] if cfg.use_wl else 0
-        stages.append(("fusion", fusion_stage(cfg.d_model, gw, wl_dim)))
+        fusion = fusion_stage(cfg.d_model, gw, wl_dim)
+        stages.append(("fusion", fusion))
+        embeddings.append(fusion.module)
         hidden_key = K.HIDDEN
     if cfg.use_dist_bias:
         tables = cfg.layers if cfg.dist_bias == "per_layer" else 1
@@ -82,4 +94,6 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
         cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width, hyper_dim=hyper
     )
     stages.append(("head", head))
+    # the hypernetwork's generated decoder has its own init (HyperLinear)
+    init_like_original(cfg.init, embeddings=embeddings, decoder=None if hyper else head.module)
     return Backbone(stages, tuple(static), name="GCNT+HN" if cfg.hypernet else "GCNT")

@@ -1,7 +1,8 @@
 """AMORPHEUS (Kurin et al. 2021): a Transformer over limb tokens with no positional information.
 
 Input Linear(F→d)·√d; post-LN encoder layers (ReLU, dropout 0) and a final LayerNorm; decoder
-[output ‖ raw limb input (‖ height-map embedding)] → (64 →) out per limb.
+[output ‖ raw limb input (‖ height-map embedding)] → (64 →) out per limb. Init as the AMORPHEUS
+code (``init="amorpheus"``, :mod:`gcnt.nn.init`).
 """
 
 from __future__ import annotations
@@ -11,20 +12,19 @@ from tensordict import TensorDictBase
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import TransformerConfig
+from gcnt.nn.init import init_like_original
 from gcnt.nn.stages import encoder_of, limb_encoder_stage, limb_head_stage, transformer_stage
 
 
 def amorpheus_backbone(cfg: TransformerConfig, io: NetIO, table: TensorDictBase) -> Backbone:
+    encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
+    head = limb_head_stage(cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width)
+    init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
     return Backbone(
         [
-            ("encoder", limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)),
+            ("encoder", encoder),
             ("transformer", transformer_stage(encoder_of(cfg), K.EMBED, with_bias=False)),
-            (
-                "head",
-                limb_head_stage(
-                    cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width
-                ),
-            ),
+            ("head", head),
         ],
         name="AMORPHEUS",
     )

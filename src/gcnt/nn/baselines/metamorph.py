@@ -6,20 +6,20 @@
       → dropout 0.1 → pre-LN encoder layers (no final LayerNorm)
       → head: output (‖ height-map embedding) → (64 →) out, per limb (no raw-input residual)
 
-MetaMorph* drops the position embedding and the embedding dropout. Init: embedding weight
-U(±0.1); last decoder layer weight U(±0.01), bias 0; position table N(0, 1). The position table has
+MetaMorph* drops the position embedding and the embedding dropout. Init (``init="metamorph"``,
+:mod:`gcnt.nn.init`): embedding weight U(±0.1); last decoder layer weight U(±0.01), bias 0;
+position table N(0, 1). The position table has
 ``max_limbs`` rows (12, UNIMAL's padding): the chain rejects a robot with more limbs.
 """
 
 from __future__ import annotations
 
 from tensordict import TensorDictBase
-from torch import nn
 
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import MetaMorphConfig
-from gcnt.nn.layers import last_linear
+from gcnt.nn.init import init_like_original
 from gcnt.nn.stages import (
     encoder_of,
     limb_encoder_stage,
@@ -31,11 +31,8 @@ from gcnt.nn.stages import (
 
 def metamorph_backbone(cfg: MetaMorphConfig, io: NetIO, table: TensorDictBase) -> Backbone:
     encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
-    nn.init.uniform_(last_linear(encoder.module).weight, -0.1, 0.1)
     head = limb_head_stage(cfg.d_model, io.out_dim, hfield_width=io.hfield_width)
-    out = last_linear(head.module)
-    nn.init.uniform_(out.weight, -0.01, 0.01)
-    nn.init.zeros_(out.bias)
+    init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
     stages = [("encoder", encoder)]
     token_key = K.EMBED
     if cfg.position_embedding:

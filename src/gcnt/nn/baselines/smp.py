@@ -1,17 +1,30 @@
 """SMP (Huang et al. 2020): shared modular policies that pass messages along the limb tree.
 
-Bottom-up: every limb's MLP maps [its input ‖ sum of its children's up-messages] to an
-up-message (``msg_dim``). Top-down: every limb's MLP maps [its up-message ‖ its parent's
-down-message] to a hidden vector (``hidden``), from which a Linear makes the down-message it sends
-to its children; the shared head reads [hidden ‖ raw limb input (‖ height-map embedding)].
-Messages are L2-normalised.
+The structure and sizes of the original code's both-way policy (``huangwl18/modular-rl``,
+``src/ModularActor.py``: ``ActorUp``, ``ActorDownAction``; ``src/ModularCritic.py``:
+``CriticUp``, ``CriticDownAction``; ``src/utils.py``: ``MLPBase``), one module set shared by
+all limbs:
+
+* bottom-up, leaves first: ``h = normalize(Linear(input → hidden))``, then
+  ``tanh(Linear(tanh([h ‖ children's up-messages]) → hidden))``, then
+  ``up = normalize(Linear(hidden → msg_dim))``;
+* top-down, torso first: ``x = [up ‖ parent's down-message]`` (zeros at the torso);
+  ``down = normalize(MLP(tanh(x)))``, the MLP 2·msg_dim → 400 → 300 → msg_dim (ReLU);
+* output per limb: an actor's action from ``MLP(tanh(x))`` (2·msg_dim → 400 → 300 → A, then the
+  role's tanh); a TD3 critic's Q from ``MLP([up ‖ limb action ‖ parent's message])`` without tanh
+  (2·msg_dim + A → 400 → 300 → 1), as ``CriticDownAction``'s ``baseQ``. With a height map its
+  encoding joins the head's input.
+
+The input of a TD3 critic's bottom-up module is the limb's observation ‖ action, as in
+``CriticUp``. Messages are L2-normalised (``normalize_messages``).
 
 Vectorised over the batch by tree depth: each pass runs one step per depth level (the deepest
 level in the batch bounds the loop), updating only the limbs at that level; no loop over samples.
 
-Simplifications against the original code, on purpose: children's messages are summed (any
-number of children, order-free) instead of concatenated in fixed child slots, and a parent sends
-one message to all its children.
+Differences from the original code, on purpose: children's messages are summed (any number of
+children, order-free) instead of concatenated in ``max_children`` fixed slots, so a parent sends
+one down-message (msg_dim wide) to all its children instead of one slice per child slot; and each
+of TD3's twin critics has its own message trunk (the original's twin Q heads share one).
 """
 
 from __future__ import annotations
@@ -26,7 +39,6 @@ from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SMPConfig
 from gcnt.nn.layers import flatten_lead, mlp
-from gcnt.nn.stages import limb_head_stage
 
 MSG_UP = ("limbs", "msg_up")
 
@@ -63,10 +75,15 @@ def _flat_tree(x: Tensor, parent: Tensor, mask: Tensor):
 
 
 class SMPUp(_Messages):
+    """The bottom-up pass: every limb's up-message from its input and its children's
+    up-messages (summed), leaves first."""
+
     def __init__(self, in_dim: int, msg_dim: int, hidden: int, normalize: bool = True) -> None:
         super().__init__(normalize)
         self.msg_dim = msg_dim
-        self.net = mlp(in_dim + msg_dim, (hidden, hidden), msg_dim)
+        self.fc1 = nn.Linear(in_dim, hidden)
+        self.fc2 = nn.Linear(hidden + msg_dim, hidden)
+        self.fc3 = nn.Linear(hidden, msg_dim)
 
     def forward(self, x: Tensor, parent: Tensor, mask: Tensor) -> Tensor:
         x, lead, parent, mask, depth, levels = _flat_tree(x, parent, mask)
@@ -76,19 +93,24 @@ class SMPUp(_Messages):
             mask.unsqueeze(-2)
         )
         child = child.to(x.dtype)
+        h = self._norm(self.fc1(x))  # the limb's own part: the same at every level
         up = x.new_zeros(n, k, self.msg_dim)
         for lvl in range(levels, -1, -1):
-            new = self._norm(self.net(torch.cat([x, child @ up], -1)))
+            z = torch.tanh(self.fc2(torch.tanh(torch.cat([h, child @ up], -1))))
+            new = self._norm(self.fc3(z))
             up = torch.where((depth == lvl).unsqueeze(-1), new, up)
         return up.reshape(*lead, k, self.msg_dim)
 
 
 class SMPDown(_Messages):
-    def __init__(self, msg_dim: int, hidden: int, normalize: bool = True) -> None:
+    """The top-down pass: every limb's [up-message ‖ parent's down-message] (zeros at the torso),
+    torso first; its own down-message to its children comes from an MLP of the tanh of that.
+    Returns the [up ‖ parent's message] of every limb (width 2·msg_dim), which the head reads."""
+
+    def __init__(self, msg_dim: int, head_hidden: tuple[int, ...], normalize: bool = True) -> None:
         super().__init__(normalize)
-        self.msg_dim, self.hidden = msg_dim, hidden
-        self.net = mlp(2 * msg_dim, (hidden,), hidden)
-        self.msg = nn.Linear(hidden, msg_dim)
+        self.msg_dim = msg_dim
+        self.msg = mlp(2 * msg_dim, head_hidden, msg_dim)
 
     def forward(self, up: Tensor, parent: Tensor, mask: Tensor) -> Tensor:
         up, lead, parent, mask, depth, levels = _flat_tree(up, parent, mask)
@@ -96,18 +118,56 @@ class SMPDown(_Messages):
         has_parent = (parent >= 0).unsqueeze(-1)
         idx = parent.clamp_min(0).unsqueeze(-1).expand(n, k, self.msg_dim)
         down = up.new_zeros(n, k, self.msg_dim)
-        feats = up.new_zeros(n, k, self.hidden)
-        for lvl in range(0, levels + 1):
+        for lvl in range(0, levels):  # the deepest level sends no message
             from_parent = torch.where(has_parent, down.gather(1, idx), down.new_zeros(()))
-            h = F.relu(self.net(torch.cat([up, from_parent], -1)))
-            sel = (depth == lvl).unsqueeze(-1)
-            feats = torch.where(sel, h, feats)
-            down = torch.where(sel, self._norm(self.msg(h)), down)
-        return feats.reshape(*lead, k, self.hidden)
+            new = self._norm(self.msg(torch.tanh(torch.cat([up, from_parent], -1))))
+            down = torch.where((depth == lvl).unsqueeze(-1), new, down)
+        from_parent = torch.where(has_parent, down.gather(1, idx), down.new_zeros(()))
+        return torch.cat([up, from_parent], -1).reshape(*lead, k, 2 * self.msg_dim)
+
+
+class SMPHead(nn.Module):
+    """The per-limb output MLP (``MLPBase``): an actor reads tanh([up ‖ parent's message]); a
+    TD3 critic reads [up ‖ limb action ‖ parent's message] (no tanh); the height-map encoding,
+    if any, is joined to the input."""
+
+    def __init__(
+        self,
+        msg_dim: int,
+        out_dim: int,
+        hidden: tuple[int, ...],
+        *,
+        action_dim: int = 0,
+        hfield_width: int = 0,
+    ) -> None:
+        super().__init__()
+        self.msg_dim, self.action_dim, self.hfield = msg_dim, action_dim, hfield_width > 0
+        self.net = mlp(2 * msg_dim + action_dim + hfield_width, hidden, out_dim)
+
+    def forward(self, features: Tensor, *parts: Tensor) -> Tensor:
+        it = iter(parts)
+        if self.action_dim:  # a critic: the limb's action sits at the end of limbs/input
+            action = next(it)[..., -self.action_dim :]
+            up, from_parent = features.split(self.msg_dim, -1)
+            x = torch.cat([up, action, from_parent], -1)
+        else:
+            x = torch.tanh(features)
+        if self.hfield:
+            h = next(it)
+            x = torch.cat([x, h.unsqueeze(-2).expand(*x.shape[:-1], h.shape[-1])], -1)
+        return self.net(x)
 
 
 def smp_backbone(cfg: SMPConfig, io: NetIO, table: TensorDictBase) -> Backbone:
-    head = limb_head_stage(cfg.hidden, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width)
+    head_keys = [K.FEATURES] + ([K.INPUT] if io.action_dim else [])
+    head_keys += [K.HFIELD_EMBED] if io.hfield_width else []
+    head = SMPHead(
+        cfg.msg_dim,
+        io.out_dim,
+        cfg.head_hidden,
+        action_dim=io.action_dim,
+        hfield_width=io.hfield_width,
+    )
     return Backbone(
         [
             (
@@ -121,12 +181,12 @@ def smp_backbone(cfg: SMPConfig, io: NetIO, table: TensorDictBase) -> Backbone:
             (
                 "down",
                 TensorDictModule(
-                    SMPDown(cfg.msg_dim, cfg.hidden, cfg.normalize_messages),
+                    SMPDown(cfg.msg_dim, cfg.head_hidden, cfg.normalize_messages),
                     [MSG_UP, K.PARENT, K.MASK],
                     [K.FEATURES],
                 ),
             ),
-            ("head", head),
+            ("head", TensorDictModule(head, head_keys, [K.OUT])),
         ],
         static_keys=(K.PARENT,),
         name="SMP",

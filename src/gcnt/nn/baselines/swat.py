@@ -19,6 +19,7 @@ from torch import Tensor, nn
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SWATConfig
+from gcnt.nn.init import init_like_original
 from gcnt.nn.stages import (
     encoder_of,
     limb_encoder_stage,
@@ -49,10 +50,12 @@ class TraversalEmbedding(nn.Module):
 
 
 def swat_backbone(cfg: SWATConfig, io: NetIO, table: TensorDictBase) -> Backbone:
+    encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
     head = limb_head_stage(cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width)
+    init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
     return Backbone(
         [
-            ("encoder", limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)),
+            ("encoder", encoder),
             (
                 "traversal",
                 TensorDictModule(

@@ -51,6 +51,12 @@ class TD3Config:
     max_grad_norm: float = 0.1
     #: critic updates per stored environment step (the paper: 1)
     updates_per_step: float = 1.0
+    #: TD target and critic loss of the per-limb critics (``gcnt.rl.td3.loss.TARGET_RULES``):
+    #: "limb" (each limb its own target, the AMORPHEUS/SWAT/SMP code), "robot_mean" (one target
+    #: per robot from the mean over real limbs), "robot_sum" (one per robot from the summed limb
+    #: Qs); "auto": "robot_sum" for the monolithic MLP (sr, mlp: plain single-robot TD3), "limb"
+    #: for every other method
+    target: Literal["auto", "limb", "robot_mean", "robot_sum"] = "auto"
 
     def check(self) -> None:
         """Values that cannot train: a ValueError naming the key."""
@@ -71,6 +77,10 @@ class TD3Config:
         check_range(self, ">= 0 finite", "exploration_noise", "policy_noise", "noise_clip")
         if self.max_grad_norm != self.max_grad_norm or self.max_grad_norm == float("inf"):
             raise ValueError(f"max_grad_norm must be finite (<= 0: off), got {self.max_grad_norm}")
+        if self.target not in ("auto", "limb", "robot_mean", "robot_sum"):
+            raise ValueError(
+                f"target must be one of auto, limb, robot_mean, robot_sum, got {self.target!r}"
+            )
         if self.batch_size > min(self.buffer_size_per_robot, self.buffer_total_size):
             raise ValueError(
                 f"batch_size {self.batch_size} is larger than the replay buffer "
@@ -86,3 +96,14 @@ class TD3Config:
                 f"td3.init_random_frames ({self.init_random_frames}) must be below "
                 f"collector.total_frames ({total}): the policy would never learn"
             )
+
+
+#: networks whose outputs are a monolithic MLP's per-slot outputs rather than a per-limb module's
+MONOLITHIC = ("sr", "mlp")
+
+
+def target_rule(config: TD3Config, network: str) -> str:
+    """The TD target rule a run uses: ``config.target``, or for "auto" the network's original."""
+    if config.target != "auto":
+        return config.target
+    return "robot_sum" if network in MONOLITHIC else "limb"

@@ -11,7 +11,8 @@ collected batch to :meth:`TD3.process`):
 3. **target** (:meth:`TD3Learner.critic_loss`): the robot-only stages run once per robot
    (:class:`~gcnt.rl.td3.tensor_chain.TensorChain`); the target actor's action plus clipped noise
    (:func:`~gcnt.rl.td3.loss.smoothed_target_action`), the target critics' per-limb Q' and the
-   TD target (:func:`~gcnt.rl.td3.loss.td_target`);
+   TD target (:func:`~gcnt.rl.td3.loss.td_target`; per limb by default, as the AMORPHEUS/SWAT
+   code: ``td3.target``);
 4. **critic step** (:meth:`TD3Learner._critic_step`): the twin-critic loss
    (:func:`~gcnt.rl.td3.loss.twin_critic_loss`), backward, then :func:`apply_gradients` (clip →
    Adam step → zero_grad);
@@ -59,7 +60,7 @@ from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwarg
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.factories import load_weights, make_net, network_weights
 from gcnt.rl.td3 import replay as rb
-from gcnt.rl.td3.config import TD3Config
+from gcnt.rl.td3.config import TD3Config, target_rule
 from gcnt.rl.td3.loss import (
     deterministic_actor_loss,
     smoothed_target_action,
@@ -87,6 +88,8 @@ class TD3Learner:
         o: TD3Config = recipe.algo_config
         self.recipe, self.config, self.accel = recipe, o, recipe.compile
         self.device = torch.device(recipe.device)
+        #: the TD target rule (``td3.target``, resolved for the network)
+        self.rule = target_rule(o, recipe.network.name)
         self.actor = make_net(recipe, env, "td3_actor")
         # two independently initialised critics (each layer keeps its own init scheme)
         self.critics = torch.nn.ModuleList(make_net(recipe, env, "td3_critic") for _ in range(2))
@@ -118,6 +121,7 @@ class TD3Learner:
         own modules untouched)."""
         shell = object.__new__(type(self))
         shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
+        shell.rule = self.rule
         shell.device = self.device
         shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
         shell.target_actor = copy.deepcopy(self.target_actor)
@@ -163,11 +167,12 @@ class TD3Learner:
                     next_q,
                     mask,
                     o.gamma,
+                    self.rule,
                 )
             now = self._inputs(batch, next_step=False)
             now[ACTION] = action
             q = tuple(f(now, robots)[LIMB_Q] for f in self.f_critics)
-            return twin_critic_loss(q, target.to(q[0].dtype), mask).to(action.dtype)
+            return twin_critic_loss(q, target.to(q[0].dtype), mask, self.rule).to(action.dtype)
 
     def actor_loss(
         self, batch: TensorDictBase, morph_id: torch.Tensor | None = None
@@ -180,7 +185,8 @@ class TD3Learner:
             now = self._inputs(batch, next_step=False)
             now[ACTION] = self.f_actor(now, robots)[ACTION]
             q1 = self.f_critics[0](now, robots)[LIMB_Q]
-            return deterministic_actor_loss(q1, robots.gathered(MASK)).to(now[OBS].dtype)
+            loss = deterministic_actor_loss(q1, robots.gathered(MASK), self.rule)
+            return loss.to(now[OBS].dtype)
 
     # Both steps take and return TensorDicts (what a CUDA graph captures) and leave no gradient
     # behind (zeroed after the optimiser step, as a captured graph needs).
