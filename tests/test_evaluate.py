@@ -1,6 +1,8 @@
-"""Tests for ``gcnt.rl.evaluate``, the evaluation summaries: ``summarize_robots`` gives the mean
-over robots with a bootstrap 95% confidence interval around it, collapsing to the value itself
-for a single robot.
+"""Tests for ``gcnt.rl.evaluate`` and ``gcnt eval``: ``summarize_robots`` gives the mean over
+robots with a bootstrap 95% confidence interval around it, collapsing to the value itself for a
+single robot; evaluation and metrics files are strict JSON (non-finite values as ``null``, read
+back as NaN); ``gcnt eval`` and the evaluations a sweep runs follow the recipe's
+``eval.deterministic`` unless a flag says otherwise.
 """
 
 import pytest
@@ -14,3 +16,106 @@ def test_summarize_robots_bootstrap_ci():
     assert s["mean"] == pytest.approx(4.0) and s["robots"] == 5
     assert s["ci95_low"] < 4.0 < s["ci95_high"]
     assert summarize_robots({"a": {"mean": 2.0}})["ci95_low"] == 2.0
+
+
+def _strict(text: str):
+    """json.loads refusing NaN and ±Infinity (what strict JSON readers do)."""
+    import json
+
+    return json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+
+
+def test_eval_files_are_strict_json(tmp_path):
+    import math
+
+    from gcnt.rl.evaluate import summarize, write_eval
+
+    # one episode: no standard error; it is written as null
+    path = write_eval(tmp_path / "step1.json", {"a": summarize([3.0])}, 1, {"episodes": 1})
+    data = _strict(path.read_text())
+    assert data["robots"]["a"]["stderr"] is None and data["robots"]["a"]["mean"] == 3.0
+    assert math.isnan(summarize([3.0])["stderr"])
+
+
+def test_metrics_are_strict_json_and_read_back_as_nan(tmp_path):
+    """A NaN or infinite metric is logged as null; the run's reader (resume) and the analysis
+    reader give NaN back; truncating on resume keeps the file strict."""
+    import math
+
+    from gcnt.analysis.runs import Run
+    from gcnt.rl.run_dir import RunDir
+
+    run = RunDir(tmp_path)
+    run.log_metrics({"env_steps": 10, "loss_actor": float("nan"), "x": float("inf"), "y": 1.5})
+    run.log_metrics({"env_steps": 20, "loss_actor": 0.5, "nested": [float("-inf")]})
+    lines = run.metrics_path.read_text().splitlines()
+    assert [_strict(line)["env_steps"] for line in lines] == [10, 20]
+    assert _strict(lines[0])["loss_actor"] is None and _strict(lines[0])["x"] is None
+    rows = run.read_metrics()
+    assert math.isnan(rows[0]["loss_actor"]) and math.isnan(rows[0]["x"]) and rows[0]["y"] == 1.5
+    run.truncate_metrics(10)
+    assert [_strict(line) for line in run.metrics_path.read_text().splitlines()] == [
+        {"env_steps": 10, "loss_actor": None, "x": None, "y": 1.5}
+    ]
+    (tmp_path / "recipe.yaml").write_text("seed: 0\n")
+    assert math.isnan(Run(tmp_path).metrics()[0]["loss_actor"])
+
+
+@pytest.fixture
+def stochastic_run(tmp_path):
+    """A run directory whose recipe evaluates with sampled actions (as UNIMAL's recipes do)."""
+    import torch
+
+    from gcnt.recipes import load_recipe
+    from gcnt.rl.run_dir import RunDir
+
+    recipe = load_recipe("recipes/quickstart.yaml", ["eval.deterministic=false"])
+    run = RunDir(tmp_path / "run")
+    run.create(recipe)
+    torch.save({"env_steps": 40, "policy": {"actor": {}}}, run.checkpoint_path)
+    return run
+
+
+@pytest.mark.parametrize(
+    ("flags", "deterministic", "episodes", "mode"),
+    [
+        ([], False, 32, "stoch"),  # the recipe's protocol, ModuMorph's 32 episodes
+        (["--deterministic"], True, 100, "det"),
+        (["--stochastic", "--episodes", "3"], False, 3, "stoch"),
+    ],
+)
+def test_gcnt_eval_follows_the_recipe_protocol_unless_told(
+    stochastic_run, monkeypatch, capsys, flags, deterministic, episodes, mode
+):
+    import json
+
+    import gcnt.rl.evaluate as E
+    from gcnt.cli import main
+
+    asked = {}
+
+    def fake_evaluate(recipe, policy, specs, *, episodes, seed, deterministic):
+        asked.update(episodes=episodes, deterministic=deterministic)
+        return {"hopper_3": E.summarize([1.0, 2.0])}
+
+    monkeypatch.setattr(E, "evaluate", fake_evaluate)
+    assert main(["eval", str(stochastic_run.path), "--robots", "train", *flags]) == 0
+    assert asked == {"episodes": episodes, "deterministic": deterministic}
+    out = stochastic_run.path / "eval" / f"train-step40-{mode}-seed10000.json"
+    meta = json.loads(out.read_text())
+    assert (meta["deterministic"], meta["episodes"]) == (deterministic, episodes)
+    action = "deterministic" if deterministic else "sampled"
+    assert f"{action} actions, {episodes} episodes per robot" in capsys.readouterr().out
+
+
+def test_sweep_eval_commands_leave_the_protocol_to_the_recipe():
+    from gcnt.sweep import RunSpec, eval_command
+
+    spec = RunSpec(
+        id="r", run_dir="r", recipe="x.yaml", task="t", algo="td3", method="gcnt", seed=0,
+        overrides=[],
+    )  # fmt: skip
+    argv = eval_command(spec, "test")
+    assert argv[-4:] == ["eval", "r", "--robots", "test"]  # no --episodes, no mode flag
+    spec.eval_episodes, spec.eval_deterministic = 10, False
+    assert eval_command(spec, "test")[-3:] == ["--episodes", "10", "--stochastic"]

@@ -1,4 +1,5 @@
-"""The quick-start notebook runs top to bottom (nbclient, the current interpreter's kernel)."""
+"""The quick-start notebook runs top to bottom (nbclient, the current interpreter's kernel) and
+shows its plots inline (PNG outputs of the cells, as in Jupyter)."""
 
 from __future__ import annotations
 
@@ -23,3 +24,5 @@ def test_quickstart_notebook_executes(tmp_path: Path) -> None:
     assert not [o for o in outputs if o.get("output_type") == "error"]
     text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
     assert "gcnt" in text and "finished: True" in text and "curves.png" in text
+    images = [o for o in outputs if "image/png" in o.get("data", {})]
+    assert len(images) == 2  # the rollout's rewards (matplotlib inline) and the learning curve

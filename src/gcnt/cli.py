@@ -6,15 +6,19 @@ Each sub-command lives in ``gcnt.commands.<name>`` and provides ``add_arguments(
 imported, so ``gcnt --help`` and a misspelt command answer at once (torch is not loaded).
 
 A mistake in what the user gave (a recipe, robot file, override, checkpoint, directory) is one
-line naming the culprit and exit code 2; ``-v`` adds the traceback.
+line naming the culprit and exit code 2; ``-v`` adds the traceback. A sub-command's options and
+its positional words (recipe, ``key=value`` overrides) may come in any order.
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import logging
+import os
 import sys
+from pathlib import Path
 
 from gcnt.suggest import did_you_mean
 
@@ -42,7 +46,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "zeroshot": ("gcnt.commands.zeroshot", "zero-shot table over seeds (paper table 1)"),
     "variants": ("gcnt.commands.variants", "returns on variant sets, bootstrap CIs (figure 8)"),
     "embed": ("gcnt.commands.embed", "t-SNE of per-limb structural vectors (figure 10)"),
-    "strobe": ("gcnt.commands.strobe", "a strobe picture of one rollout per run (figure 11)"),
+    "strobe": (
+        "gcnt.commands.strobe",
+        "one strobe picture of the runs' rollouts, a row per method (figure 11)",
+    ),
     "tables": ("gcnt.commands.tables", "parameter tables as Markdown (tables 7-8)"),
 }
 
@@ -76,6 +83,60 @@ def _command_of(argv: list[str]) -> str | None:
     return None
 
 
+class IntermixedParser(argparse.ArgumentParser):
+    """A sub-command's parser: options may come before, between or after the positional words
+    (``gcnt train RECIPE --seeds 0,1 key=value``). Parsers with a REMAINDER positional (``gcnt
+    sweep``, which sorts its words itself) parse as usual."""
+
+    _inside = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        remainder = any(
+            a.nargs in (argparse.REMAINDER, argparse.PARSER) for a in self._get_positional_actions()
+        )
+        if self._inside or remainder:
+            return super().parse_known_args(args, namespace)
+        # parse_known_intermixed_args parses twice through parse_known_args
+        self._inside = True
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._inside = False
+
+
+def existing_run_dir(text: str) -> Path:
+    """``text`` as a path that exists; a FileNotFoundError with the closest existing paths
+    otherwise (runs are stored under a slug of the task: ``runs/Walker++/...`` is
+    ``runs/Walkerpp/...``)."""
+    path = Path(text)
+    if path.exists():
+        return path
+    hint = did_you_mean(text, _close_paths(path))
+    raise FileNotFoundError(f"run directory {text} does not exist{hint}")
+
+
+def _close_paths(path: Path, depth: int = 0) -> list[str]:
+    """Existing paths that differ from ``path`` in a few misspelt parts (up to 3)."""
+    parts = path.parts
+    i = next((i for i in range(len(parts)) if not Path(*parts[: i + 1]).exists()), len(parts))
+    if i == len(parts):
+        return [str(path)]
+    parent = Path(*parts[:i]) if i else Path(".")
+    if depth >= 3 or not parent.is_dir():
+        return []
+    try:
+        names = [p.name for p in parent.iterdir() if p.is_dir() or i == len(parts) - 1]
+    except OSError:  # a folder that cannot be listed
+        return []
+    # the task folder's name as RunDir.for_recipe spells it (runs/Walker++ -> runs/Walkerpp)
+    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in parts[i].replace("+", "p"))
+    close = ([slug] if slug in names else []) + difflib.get_close_matches(parts[i], names, 3, 0.5)
+    found: list[str] = []
+    for name in dict.fromkeys(close):
+        found += _close_paths(parent.joinpath(name, *parts[i + 1 :]), depth + 1)
+    return [str(Path(p)) for p in dict.fromkeys(found)][:3]
+
+
 def build_parser(only: str | None) -> argparse.ArgumentParser:
     """The parser; the arguments of sub-command ``only`` are added (its module is imported)."""
     parser = argparse.ArgumentParser(
@@ -84,7 +145,9 @@ def build_parser(only: str | None) -> argparse.ArgumentParser:
         "on SMPENV and UNIMAL robots.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging, tracebacks")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=IntermixedParser
+    )
     for name, (module, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
         if name == only:
@@ -102,6 +165,11 @@ def _configure_logging(verbose: bool) -> None:
     gcnt_log.handlers[:] = [handler]
     gcnt_log.setLevel(logging.DEBUG if verbose else logging.INFO)
     gcnt_log.propagate = False
+    # torchrl's info lines (a storage initialised, ...) stay out of the logs; torchrl sets its
+    # logger's level from RL_LOGGING_LEVEL when it is imported
+    level = "INFO" if verbose else os.environ.get("RL_LOGGING_LEVEL", "WARNING")
+    os.environ["RL_LOGGING_LEVEL"] = level
+    logging.getLogger("torchrl").setLevel(level)
 
 
 def main(argv: list[str] | None = None) -> int:

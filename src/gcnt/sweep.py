@@ -87,7 +87,11 @@ class RunSpec:
     overrides: list[str]
     #: robot specs to evaluate after training (``gcnt eval RUN_DIR --robots SPEC``)
     evals: list[str] = field(default_factory=list)
-    eval_episodes: int = 100
+    #: episodes per robot for ``evals`` (None: ``gcnt eval``'s default for the protocol)
+    eval_episodes: int | None = None
+    #: actions for ``evals``: the mean (True), sampled (False), or None: the recipe's
+    #: ``eval.deterministic``, as ``gcnt eval`` does without a flag
+    eval_deterministic: bool | None = None
     state: str = "pending"
     #: spec -> "done" | "failed"
     eval_state: dict[str, str] = field(default_factory=dict)
@@ -137,9 +141,19 @@ def commands(spec: RunSpec) -> list[tuple[str, list[str]]]:
         else:
             out.append(("train", [*gcnt_command(), "train", spec.recipe, *spec.overrides]))
     for robots in spec.pending_evals():
-        argv = [*gcnt_command(), "eval", spec.run_dir, "--robots", robots]
-        out.append((f"eval:{robots}", [*argv, "--episodes", str(spec.eval_episodes)]))
+        out.append((f"eval:{robots}", eval_command(spec, robots)))
     return out
+
+
+def eval_command(spec: RunSpec, robots: str) -> list[str]:
+    """``gcnt eval RUN --robots ROBOTS``, with ``--episodes`` and ``--deterministic`` or
+    ``--stochastic`` only where the sweep sets them (else the run's recipe decides)."""
+    argv = [*gcnt_command(), "eval", spec.run_dir, "--robots", robots]
+    if spec.eval_episodes is not None:
+        argv += ["--episodes", str(spec.eval_episodes)]
+    if spec.eval_deterministic is not None:
+        argv.append("--deterministic" if spec.eval_deterministic else "--stochastic")
+    return argv
 
 
 # ----------------------------------------------------------------------------- the grid
@@ -211,7 +225,8 @@ def expand(
     seeds: Sequence[int] | None = None,
     overrides: Sequence[str] = (),
     evals: Sequence[str] = (),
-    eval_episodes: int = 100,
+    eval_episodes: int | None = None,
+    eval_deterministic: bool | None = None,
     group: str | None = None,
     per_robot: str | Sequence[str] | None = None,
 ) -> list[RunSpec]:
@@ -259,6 +274,7 @@ def expand(
                         raise SweepError(str(e)) from None
                     spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
                     spec.evals, spec.eval_episodes = list(evals), eval_episodes
+                    spec.eval_deterministic = eval_deterministic
                     specs.append(spec)
     if not specs:
         raise SweepError("the sweep has no runs (no recipes?)")
@@ -362,6 +378,7 @@ class Manifest:
                 old = known[r.id]
                 old.evals = list(dict.fromkeys([*old.evals, *r.evals]))
                 old.eval_episodes = r.eval_episodes
+                old.eval_deterministic = r.eval_deterministic
             else:
                 self.runs.append(r)
 

@@ -1,9 +1,14 @@
 """Learning curves (paper figures 6, 7 and 9): mean ± standard error over seeds vs env steps.
 
-Seeds log at their own step counts, so each seed's curve is linearly interpolated onto one grid
-of environment steps that every seed of the group covers (from the latest first log step to the
-earliest last one), and mean and standard error are taken there. Smoothing (a trailing moving
-average over log rows, per seed) happens only when asked for.
+A curve is a column of ``metrics.jsonl`` (default ``train_return/mean``: the return of the
+training episodes, exploring, and during TD3's first ``init_random_frames`` steps the return of
+uniform random actions), or ``eval``: the return of the evaluations made during training
+(``eval/step<N>.json``, every ``eval.interval`` steps and at the end; the curve of the paper's
+figures), averaged over the training robots (``eval/ROBOT``: one robot). The rows are the logged
+env steps. Where the seeds log at different steps, each seed's curve is linearly interpolated
+onto the union of their logged steps within the range every seed covers (from the latest first
+log step to the earliest last one), and ``logged`` counts the seeds that logged at each row.
+Smoothing (a trailing moving average over log rows, per seed) happens only when asked for.
 
 Single-robot baselines (SR-fair, SR-top: ``gcnt sweep --per-robot``) are one run per robot and
 seed. Within a (task, method) group, the runs of one seed that each train one robot are that
@@ -22,23 +27,58 @@ from pathlib import Path
 
 import numpy as np
 
-from gcnt.analysis.runs import AnalysisError, Run, method_key, method_labels
+from gcnt.analysis.runs import (
+    AnalysisError,
+    Run,
+    method_key,
+    method_labels,
+    protocols_text,
+    score,
+)
 
 log = logging.getLogger(__name__)
 
-CSV_FIELDS = ("task", "method", "env_steps", "mean", "stderr", "seeds", "robots")
+CSV_FIELDS = ("task", "method", "env_steps", "mean", "stderr", "seeds", "robots", "logged")
+#: the ``--metric`` of the training evaluations' return (``eval/ROBOT``: one robot's)
+EVAL_METRIC = "eval"
+
+
+def _is_eval(metric: str) -> bool:
+    return metric == EVAL_METRIC or metric.startswith(EVAL_METRIC + "/")
+
+
+def _eval_points(run: Run, metric: str) -> list[tuple[float, float]]:
+    """(env_steps, return) of the evaluations made during training: the mean over the training
+    robots (``eval``) or one robot's (``eval/ROBOT``)."""
+    records = [e for e in run.evals() if e.label == ""]
+    if metric != EVAL_METRIC:
+        robot = metric.split("/", 1)[1]
+        return [(e.env_steps, score(e.robots[robot])) for e in records if robot in e.robots]
+    train = set(run.train_robot_names())
+    test = set(run.test_robot_names())
+    pts = []
+    for e in records:
+        names = [r for r in e.robots if r in train] if train else []
+        names = names or [r for r in e.robots if r not in test]
+        if names:
+            pts.append((e.env_steps, float(np.mean([score(e.robots[r]) for r in names]))))
+    return pts
 
 
 def run_curve(run: Run, metric: str, smooth: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """(env_steps, values) of ``metric`` in a run's metrics, optionally smoothed."""
-    pts = [
-        (float(r["env_steps"]), float(r[metric]))
-        for r in run.metrics()
-        if isinstance(r.get(metric), int | float) and np.isfinite(r[metric])
-    ]
+    """(env_steps, values) of ``metric`` in a run (a column of its metrics, or ``eval``),
+    optionally smoothed; non-finite values are left out."""
+    if _is_eval(metric):
+        raw = _eval_points(run, metric)
+    else:
+        raw = [
+            (float(r["env_steps"]), float(r[metric]))
+            for r in run.metrics()
+            if isinstance(r.get(metric), int | float)
+        ]
+    pts = sorted((x, y) for x, y in raw if np.isfinite(y))
     if not pts:
         return np.zeros(0), np.zeros(0)
-    pts.sort()
     x, y = map(np.asarray, zip(*pts, strict=True))
     if smooth > 1:
         c = np.cumsum(np.insert(y, 0, 0.0))
@@ -47,28 +87,41 @@ def run_curve(run: Run, metric: str, smooth: int = 1) -> tuple[np.ndarray, np.nd
     return x, y
 
 
+def _common_range(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[float, float]:
+    lo = max(float(x[0]) for x, _ in curves)
+    hi = min(float(x[-1]) for x, _ in curves)
+    return (hi, hi) if hi < lo else (lo, hi)  # disjoint ranges: compare at the common end
+
+
 def aggregate(
-    curves: Sequence[tuple[np.ndarray, np.ndarray]], points: int = 100
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Seeds at equal step counts: (grid, mean, stderr) over the steps every curve covers.
+    curves: Sequence[tuple[np.ndarray, np.ndarray]], points: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Seeds at equal step counts: (steps, mean, stderr, logged) over the steps every curve
+    covers. The steps are the curves' logged steps there (their union; every seed is
+    interpolated onto it), or with ``points`` an evenly spaced grid of that many; ``logged``
+    counts the curves logged at each step.
 
     The standard error is nan with one seed. Curves with one point are kept as that point.
     """
     curves = [c for c in curves if len(c[0])]
     if not curves:
-        return np.zeros(0), np.zeros(0), np.zeros(0)
-    lo = max(float(x[0]) for x, _ in curves)
-    hi = min(float(x[-1]) for x, _ in curves)
-    if hi < lo:  # disjoint ranges (e.g. a seed that just started): compare at the common end
-        lo = hi
-    grid = np.unique(np.linspace(lo, hi, max(2, points))) if hi > lo else np.array([hi])
+        return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=int)
+    lo, hi = _common_range(curves)
+    if points is not None and hi > lo:
+        grid = np.unique(np.linspace(lo, hi, max(2, points)))
+    else:
+        steps = np.concatenate([x for x, _ in curves])
+        grid = np.unique(steps[(steps >= lo) & (steps <= hi)])
+        if not len(grid):  # disjoint ranges with no step in common
+            grid = np.array([hi])
     ys = np.stack([np.interp(grid, x, y) for x, y in curves])
+    logged = np.sum([np.isin(grid, x) for x, _ in curves], axis=0)
     mean = ys.mean(0)
     if len(curves) > 1:
         stderr = ys.std(0, ddof=1) / np.sqrt(len(curves))
     else:
         stderr = np.full_like(mean, np.nan)
-    return grid, mean, stderr
+    return grid, mean, stderr, logged
 
 
 def mean_over_robots(
@@ -81,13 +134,16 @@ def mean_over_robots(
         return np.zeros(0), np.zeros(0)
     if len(curves) == 1:
         return curves[0]
-    lo = max(float(x[0]) for x, _ in curves)
-    hi = min(float(x[-1]) for x, _ in curves)
-    if hi < lo:  # disjoint ranges: compare at the common end, as between seeds
-        lo = hi
-    steps = np.concatenate([x for x, _ in curves] + [np.array([lo, hi])])
-    grid = np.unique(steps[(steps >= lo) & (steps <= hi)])
-    return grid, np.stack([np.interp(grid, x, y) for x, y in curves]).mean(0)
+    grid, mean, _, _ = aggregate(curves)
+    return grid, mean
+
+
+def logged_steps(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The steps at which every one of a seed's per-robot curves logged."""
+    steps = curves[0][0]
+    for x, _ in curves[1:]:
+        steps = steps[np.isin(steps, x)]
+    return steps
 
 
 def seed_groups(members: Sequence[Run]) -> list[list[Run]]:
@@ -107,10 +163,13 @@ def seed_groups(members: Sequence[Run]) -> list[list[Run]]:
 
 
 def learning_curves(
-    runs: Sequence[Run], metric: str = "train_return/mean", points: int = 100, smooth: int = 1
+    runs: Sequence[Run],
+    metric: str = "train_return/mean",
+    points: int | None = None,
+    smooth: int = 1,
 ) -> list[dict]:
-    """One row per (task, method, grid step): mean, stderr, the number of seeds and the number
-    of robots averaged per seed (per-robot runs; 1 otherwise)."""
+    """One row per (task, method, step): mean, stderr, the number of seeds, the number of robots
+    averaged per seed (per-robot runs; 1 otherwise) and the number of seeds logged there."""
     labels = method_labels(runs)
     groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
     for r in runs:
@@ -124,8 +183,13 @@ def learning_curves(
             per_run = [run_curve(r, metric, smooth) for r in unit]
             per_run = [c for c in per_run if len(c[0])]
             if per_run:
-                curves.append(mean_over_robots(per_run))
+                x, y = mean_over_robots(per_run)
+                # a seed counts as logged where all its robots logged (else interpolated)
+                keep = np.isin(x, logged_steps(per_run))
+                curves.append((x, y, keep))
                 robots.append(len(per_run))
+        if not curves:
+            continue
         if len(set(robots)) > 1:
             log.warning(
                 "%s %s: the seeds average different numbers of robots (%s); robots = the fewest",
@@ -133,8 +197,9 @@ def learning_curves(
                 method,
                 ", ".join(map(str, robots)),
             )
-        grid, mean, se = aggregate(curves, points)
-        for s, m, e in zip(grid, mean, se, strict=True):
+        grid, mean, se, _ = aggregate([(x, y) for x, y, _ in curves], points)
+        logged = np.sum([np.isin(grid, x[keep]) for x, _, keep in curves], axis=0)
+        for s, m, e, n in zip(grid, mean, se, logged, strict=True):
             rows.append(
                 {
                     "task": task,
@@ -144,14 +209,38 @@ def learning_curves(
                     "stderr": float(e),
                     "seeds": len(curves),
                     "robots": min(robots),
+                    "logged": int(n),
                 }
             )
     if not rows:
+        where = "eval/step<N>.json" if _is_eval(metric) else "metrics.jsonl"
         raise AnalysisError(
-            f"no run has the metric {metric!r} in its metrics.jsonl "
+            f"no run has the metric {metric!r} in its {where} "
             f"({', '.join(str(r.path) for r in runs[:3])}{', ...' if len(runs) > 3 else ''})"
         )
     return rows
+
+
+def metric_label(runs: Sequence[Run], metric: str) -> str:
+    """The y axis label: what the curve is (and for ``eval``, the evaluations' protocol)."""
+    if metric == "train_return/mean":
+        return "training return (exploring; mean over robots)"
+    if _is_eval(metric):
+        protocol = protocols_text(e.protocol for r in runs for e in r.evals() if e.label == "")
+        what = "mean over training robots" if metric == EVAL_METRIC else metric.split("/", 1)[1]
+        return f"evaluation return ({what})\n{protocol}"
+    return metric
+
+
+def random_phase(runs: Sequence[Run]) -> dict[str, list[int]]:
+    """``{task: [env steps]}``: where the runs' uniform random exploration ends (TD3's
+    ``init_random_frames``; no entry for runs without the phase)."""
+    out: dict[str, set[int]] = defaultdict(set)
+    for r in runs:
+        steps = r.init_random_frames
+        if steps:
+            out[r.task].add(steps)
+    return {task: sorted(v) for task, v in out.items()}
 
 
 def write_csv(rows: Sequence[dict], path: Path) -> Path:
@@ -165,19 +254,27 @@ def write_csv(rows: Sequence[dict], path: Path) -> Path:
     return path
 
 
-def plot_curves(rows: Sequence[dict], path: Path, metric: str = "train_return/mean") -> Path:
-    """One panel per task, one line per method, a band of ± one standard error."""
-    import matplotlib
+def plot_curves(
+    rows: Sequence[dict],
+    path: Path,
+    metric: str = "train_return/mean",
+    *,
+    ylabel: str | None = None,
+    random_until: dict[str, list[int]] | None = None,
+) -> Path:
+    """One panel per task, one line per method, a band of ± one standard error; a marker at each
+    row (filled where every seed logged, hollow where some are interpolated), and a dotted
+    vertical line where the random exploration phase ends (``random_until``: task -> steps)."""
+    from gcnt.analysis.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     methods = sorted({r["method"] for r in rows}, key=method_key)
     colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
     cols = min(4, len(tasks))
     nrows = -(-len(tasks) // cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.3 * nrows), squeeze=False)
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.6 * cols, 3.6 * nrows), squeeze=False)
     for ax, task in zip(axes.flat, tasks, strict=False):
         for m in methods:
             sel = [r for r in rows if r["task"] == task and r["method"] == m]
@@ -187,15 +284,24 @@ def plot_curves(rows: Sequence[dict], path: Path, metric: str = "train_return/me
             y = np.array([r["mean"] for r in sel])
             e = np.nan_to_num(np.array([r["stderr"] for r in sel]))
             n, k = sel[0]["seeds"], sel[0].get("robots", 1)
+            full = np.array([r.get("logged", n) >= n for r in sel])
             label = f"{m} ({n}{f' x {k} robots' if k > 1 else ''})"
-            if len(x) == 1:
-                ax.errorbar(x, y, yerr=e, fmt="o", color=colours[m], label=label)
-            else:
-                ax.plot(x, y, color=colours[m], label=label)
-                ax.fill_between(x, y - e, y + e, color=colours[m], alpha=0.2, linewidth=0)
+            c = colours[m]
+            ax.plot(x, y, color=c, label=label)
+            ax.fill_between(x, y - e, y + e, color=c, alpha=0.2, linewidth=0)
+            ax.plot(x[full], y[full], "o", color=c, markersize=3.5)
+            ax.plot(x[~full], y[~full], "o", mfc="none", color=c, markersize=3.5)
+        for i, steps in enumerate((random_until or {}).get(task, [])):
+            ax.axvline(
+                steps,
+                color="0.4",
+                linestyle=":",
+                linewidth=1,
+                label="end of random actions" if i == 0 else None,
+            )
         ax.set_title(task)
         ax.set_xlabel("environment steps")
-        ax.set_ylabel(metric.replace("train_return/mean", "average return"))
+        ax.set_ylabel(ylabel or metric, fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small", title="method (seeds)", title_fontsize="small")
     for ax in axes.flat[len(tasks) :]:

@@ -33,6 +33,7 @@ class Embedding:
     vectors: np.ndarray  # [N, d]
     limb_types: list[str]  # [N]
     robots: list[str]  # [N]
+    families: list[str]  # [N] robot family of each limb's robot (walker, cheetah, ...)
 
 
 def _widths(benchmark: str) -> tuple[int, int, str]:
@@ -109,14 +110,15 @@ def structural_vectors(
     if K.HIDDEN not in out.keys(True) or K.EMBED not in out.keys(True):
         raise AnalysisError(f"{method}: the chain wrote no {K.HIDDEN} / {K.EMBED} intermediates")
     vec = (out.get(K.HIDDEN) - out.get(K.EMBED)).numpy()
-    rows, limb_types, names = [], [], []
+    rows, limb_types, names, families = [], [], [], []
     for i, robot in enumerate(robots):  # limbs 0..n-1 of each robot are its real limbs
         for j in range(robot.num_limbs):
             rows.append(vec[i, j])
             t = int(robot.global_types[j])
             limb_types.append(GLOBAL_LIMB_TYPES[t] if 0 <= t < len(GLOBAL_LIMB_TYPES) else str(t))
             names.append(robot.name)
-    return Embedding(title or method, np.stack(rows), limb_types, names)
+            families.append(robot.family)
+    return Embedding(title or method, np.stack(rows), limb_types, names, families)
 
 
 def run_embedding(run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS) -> Embedding:
@@ -148,52 +150,110 @@ def tsne(vectors: np.ndarray, seed: int = 0, perplexity: float = 30.0) -> np.nda
     )
 
 
-MARKERS = "os^vD<>pP*Xhd8H"
+#: marker of each robot family; a family not listed takes the next of ``SPARE_MARKERS``
+FAMILY_MARKERS = {"walker": "o", "cheetah": "s", "hopper": "D", "humanoid": "^", "unimal": "P"}
+SPARE_MARKERS = "v<>pX*hd"
 
 
-def plot_embeddings(embeddings: Sequence[Embedding], path: Path, seed: int = 0) -> Path:
-    """t-SNE panels side by side: colour = limb type, marker = robot."""
-    import matplotlib
+def _family_markers(families: Sequence[str]) -> dict[str, str]:
+    spare = iter(SPARE_MARKERS)
+    return {f: FAMILY_MARKERS.get(f) or next(spare, "o") for f in families}
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def _type_colours(types: Sequence[str]) -> dict[str, Any]:
+    """One tab10 colour per limb type, fixed by its place in ``GLOBAL_LIMB_TYPES`` so that a type
+    keeps its colour across figures."""
+    from gcnt.analysis.plotting import pyplot
+
+    plt = pyplot()
+
+    from gcnt.morphology.limb_types import GLOBAL_LIMB_TYPES
+
+    cmap = plt.get_cmap("tab10")
+    known = [t for t in GLOBAL_LIMB_TYPES if t in types]
+    other = sorted(t for t in types if t not in GLOBAL_LIMB_TYPES)
+    slots = [GLOBAL_LIMB_TYPES.index(t) for t in known]
+    slots += range(len(GLOBAL_LIMB_TYPES), len(GLOBAL_LIMB_TYPES) + len(other))
+    return {t: cmap(i % 10) for t, i in zip(known + other, slots, strict=True)}
+
+
+def embedding_figure(embeddings: Sequence[Embedding], coords: Sequence[np.ndarray]):
+    """t-SNE panels side by side (``coords[i]``: [N, 2] points of ``embeddings[i]``): marker =
+    robot family, colour = limb type, with one legend for each below the panels."""
+    from gcnt.analysis.plotting import pyplot
+
+    plt = pyplot()
     from matplotlib.lines import Line2D
 
-    types = sorted({t for e in embeddings for t in e.limb_types})
-    robots = list(dict.fromkeys(r for e in embeddings for r in e.robots))
-    colour = {t: plt.get_cmap("tab10")(i % 10) for i, t in enumerate(types)}
-    marker = {r: MARKERS[i % len(MARKERS)] for i, r in enumerate(robots)}
-    fig, axes = plt.subplots(1, len(embeddings), figsize=(5.2 * len(embeddings), 5), squeeze=False)
-    for ax, e in zip(axes[0], embeddings, strict=True):
-        xy = tsne(e.vectors, seed)
-        for r in robots:
-            idx = [i for i, name in enumerate(e.robots) if name == r]
+    from gcnt.morphology.limb_types import FAMILIES
+
+    if len(coords) != len(embeddings):
+        raise ValueError(f"{len(embeddings)} embeddings but {len(coords)} coordinate arrays")
+    seen = {f for e in embeddings for f in e.families}
+    families = [f for f in FAMILIES if f in seen] + sorted(seen - set(FAMILIES))
+    marker = _family_markers(families)
+    colour = _type_colours(sorted({t for e in embeddings for t in e.limb_types}))
+    n = len(embeddings)
+    fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.6), squeeze=False)
+    for ax, e, xy in zip(axes[0], embeddings, coords, strict=True):
+        xy = np.asarray(xy)
+        if xy.shape != (len(e.vectors), 2):
+            raise ValueError(
+                f"{e.title}: coordinates of shape {xy.shape}, not ({len(e.vectors)}, 2)"
+            )
+        for f in families:
+            idx = [i for i, fam in enumerate(e.families) if fam == f]
             if idx:
                 ax.scatter(
                     xy[idx, 0],
                     xy[idx, 1],
                     c=[colour[e.limb_types[i]] for i in idx],
-                    marker=marker[r],
-                    s=28,
-                    alpha=0.8,
-                    linewidths=0,
+                    marker=marker[f],
+                    s=30,
+                    alpha=0.85,
+                    edgecolors="0.15",
+                    linewidths=0.4,
                 )
-        ax.set_title(e.title, fontsize="medium")
+        ax.set_title(e.title, fontsize="small")
         ax.set_xticks([])
         ax.set_yticks([])
-    handles = [Line2D([], [], ls="", marker="o", color=colour[t], label=t) for t in types]
-    handles += [Line2D([], [], ls="", marker=marker[r], color="0.4", label=r) for r in robots]
-    fig.legend(
-        handles=handles,
-        loc="center left",
-        bbox_to_anchor=(1.0, 0.5),
-        fontsize="x-small",
-        ncols=1 + len(handles) // 30,
-        title="limb type (colour) / robot (marker)",
-        title_fontsize="small",
-    )
+        ax.set_aspect("equal", adjustable="datalim")
     fig.tight_layout()
+    fam_handles = [
+        Line2D([], [], ls="", marker=marker[f], mfc="0.75", mec="0.15", label=f) for f in families
+    ]
+    type_handles = [
+        Line2D([], [], ls="", marker="o", mfc=c, mec="0.15", label=t) for t, c in colour.items()
+    ]
+    common = {"fontsize": "small", "title_fontsize": "small", "frameon": False}
+    common |= {"handletextpad": 0.2, "columnspacing": 0.8}
+    fig.legend(
+        handles=fam_handles,
+        title="robot family (marker)",
+        loc="upper right",
+        bbox_to_anchor=(0.48, 0.0),
+        ncols=max(1, (len(fam_handles) + 1) // 2),
+        **common,
+    )
+    fig.legend(
+        handles=type_handles,
+        title="limb type (colour)",
+        loc="upper left",
+        bbox_to_anchor=(0.52, 0.0),
+        ncols=max(1, (len(type_handles) + 1) // 2),
+        **common,
+    )
+    return fig
+
+
+def plot_embeddings(embeddings: Sequence[Embedding], path: Path, seed: int = 0) -> Path:
+    """:func:`embedding_figure` of the t-SNE of each embedding, written to ``path``."""
+    from gcnt.analysis.plotting import pyplot
+
+    plt = pyplot()
+
+    fig = embedding_figure(embeddings, [tsne(e.vectors, seed) for e in embeddings])
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    fig.savefig(path, dpi=150, bbox_inches="tight")
     plt.close(fig)
     return path

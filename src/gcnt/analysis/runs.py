@@ -4,6 +4,7 @@ A run directory, as ``gcnt train`` writes it::
 
     recipe.yaml            the resolved recipe
     metrics.jsonl          one JSON row per log step: env_steps, train_return/mean, ...
+                           (a non-finite value is ``null``; read back as NaN)
     checkpoints/last.pt    the latest checkpoint
     eval/*.json            evaluations: {"env_steps": N, "robots": {name: {"mean", ...}}, ...}
 """
@@ -57,13 +58,81 @@ class EvalRecord:
     #: extra keys (robots_spec, episodes, seed, deterministic, ...) when the file has them
     meta: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def specs(self) -> list[str]:
+        """The robot specifications evaluated, as given (``gcnt eval --robots``: may be
+        ``test`` or ``train``)."""
+        spec = self.meta.get("robots_spec") or []
+        return [spec] if isinstance(spec, str) else [str(s) for s in spec]
+
     def matches(self, name: str) -> bool:
-        """True if ``name`` is this evaluation's label or part of its robot specification."""
+        """True if set ``name`` is this whole evaluation: its label (``training`` for the
+        evaluations made during training), or its one robot specification (as given or as
+        ``gcnt eval`` resolved it), or that specification's split (``variants-kinematics`` for
+        ``Unimal:variants-kinematics``). An evaluation of several specifications is matched by
+        :meth:`specs_named` instead."""
         if name == self.label or (name == "training" and self.label == ""):
             return True
-        spec = self.meta.get("robots_spec") or []
-        spec = [spec] if isinstance(spec, str) else list(spec)
-        return any(name == s or name in str(s).split(":") for s in spec)
+        for specs in (self.specs, self.meta.get("resolved_specs") or []):
+            if len(specs) == 1 and _names_spec(name, str(specs[0])):
+                return True
+        return False
+
+    def specs_named(self, name: str) -> list[str]:
+        """The specifications of this evaluation that set ``name`` names (a part of it)."""
+        return [s for s in self.specs if _names_spec(name, s)]
+
+    @property
+    def deterministic(self) -> bool | None:
+        """The policy's mean action (True) or sampled actions (False); None if not recorded."""
+        value = self.meta.get("deterministic")
+        return bool(value) if value is not None else None
+
+    @property
+    def episodes(self) -> int:
+        """Episodes per robot (the fewest of any robot when they differ; 0 if not recorded)."""
+        counts = [_int(r.get("episodes")) for r in self.robots.values() if isinstance(r, dict)]
+        return min(counts) if counts else _int(self.meta.get("episodes"))
+
+    @property
+    def protocol(self) -> str:
+        """How the numbers were made (:func:`protocol_text`)."""
+        return protocol_text(self.deterministic, self.episodes)
+
+
+def _names_spec(name: str, spec: str) -> bool:
+    """``name`` is robot specification ``spec``, or its split (the part after ``Benchmark:``)."""
+    return name == spec or (":" in spec and name == spec.split(":", 1)[1])
+
+
+def _int(value: Any) -> int:
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return 0
+
+
+def score(result: Any) -> float:
+    """A robot's mean return in an evaluation file (NaN when missing or ``null``)."""
+    value = result.get("mean") if isinstance(result, dict) else None
+    return float(value) if isinstance(value, int | float) else math.nan
+
+
+def protocol_text(deterministic: bool | None, episodes: int | None) -> str:
+    """``deterministic actions, 100 episodes per robot`` (the policy's mean action), ``sampled
+    actions, 32 episodes per robot``; ``actions not recorded`` for old evaluation files."""
+    mode = {True: "deterministic actions", False: "sampled actions", None: "actions not recorded"}
+    return (
+        f"{mode[deterministic]}, {episodes} episodes per robot" if episodes else mode[deterministic]
+    )
+
+
+def protocols_text(protocols: Iterable[str]) -> str:
+    """One protocol, or ``mixed: A; B`` when the numbers come from several."""
+    kinds = sorted(set(protocols))
+    if len(kinds) == 1:
+        return kinds[0]
+    return "mixed: " + "; ".join(kinds) if kinds else "no evaluations"
 
 
 #: ``step<N>`` (training), ``<label>-step<N>`` or ``<label>-step<N>-<mode>-seed<S>`` (gcnt eval)
@@ -129,6 +198,23 @@ class Run:
         return str(_get(self.recipe, "env", "benchmark", default=None) or "smpenv")
 
     @property
+    def eval_deterministic(self) -> bool:
+        """The recipe's evaluation protocol: the policy's mean action (True, the default) or
+        sampled actions (False: ModuMorph's PPO protocol)."""
+        return bool(_get(self.recipe, "eval", "deterministic", default=True))
+
+    @property
+    def init_random_frames(self) -> int | None:
+        """Env steps of uniform random actions before learning (TD3): the run's own count from
+        the recipe's ``resolved:`` section (rounded to whole batches), else ``td3``'s; None for
+        algorithms without the phase."""
+        for path in (("resolved", "init_random_frames"), (self.algo, "init_random_frames")):
+            value = _get(self.recipe, *path)
+            if isinstance(value, int | float):
+                return int(value)
+        return None
+
+    @property
     def total_frames(self) -> int | None:
         value = _get(self.recipe, "collector", "total_frames")
         return int(value) if value is not None else None
@@ -160,7 +246,8 @@ class Run:
 
     # --- metrics
     def metrics(self) -> list[dict[str, Any]]:
-        """Rows of ``metrics.jsonl`` (a torn last line, from a run killed mid-write, is skipped)."""
+        """Rows of ``metrics.jsonl``, ``null`` read as NaN (a torn last line, from a run killed
+        mid-write, is skipped)."""
         path = self.path / METRICS_FILE
         if not path.exists():
             return []
@@ -170,8 +257,9 @@ class Run:
                 row = json.loads(line)
             except json.JSONDecodeError:
                 continue
-            if isinstance(row, dict) and "env_steps" in row:
-                rows.append(row)
+            if isinstance(row, dict) and isinstance(row.get("env_steps"), int | float):
+                # ``null`` is a non-finite value the run logged (strict JSON has no NaN)
+                rows.append({k: math.nan if v is None else v for k, v in row.items()})
         return rows
 
     def last_env_steps(self) -> int:
@@ -219,6 +307,23 @@ class Run:
             meta = {k: v for k, v in data.items() if k not in ("robots", "env_steps")}
             out.append(EvalRecord(path, label, int(steps or 0), data["robots"], meta))
         return out
+
+    def set_robots(self, record: EvalRecord, name: str) -> list[str]:
+        """The robots of evaluation ``record`` that set ``name`` selects: all of them when the
+        set is the whole evaluation (:meth:`EvalRecord.matches`), else those of the
+        specifications it names (the test robots of ``Walker++:test`` inside training's
+        evaluation of train and test robots), never more; [] when it names none."""
+        if record.matches(name):
+            return list(record.robots)
+        wanted: set[str] = set()
+        for spec in record.specs_named(name):
+            if spec == "test":
+                wanted.update(self.test_robot_names())
+            elif spec == "train":
+                wanted.update(self.train_robot_names())
+            else:
+                wanted.update(_robot_names([spec]))
+        return [r for r in record.robots if r in wanted]
 
     def test_robot_names(self) -> list[str]:
         """Names of the recipe's test robots, resolved through the robot catalogues."""

@@ -1,17 +1,21 @@
 """Zero-shot returns on robot variant sets (paper figure 8) with 95% bootstrap confidence intervals.
 
-A *set* is a group of evaluations named the same way: ``gcnt eval RUN --robots SPEC`` keeps each
-evaluation under a label saying what was evaluated, and a set name matches that label or a part
-of the evaluated robot specification (e.g. ``variants-kinematics`` matches
-``Unimal:variants-kinematics``).
+A *set* is one evaluation of each run: ``gcnt eval RUN --robots SPEC`` keeps each evaluation
+under a label saying what was evaluated, and a set name is that label, that robot specification
+or its split (``variants-kinematics`` for ``Unimal:variants-kinematics``). Inside an evaluation of
+several specifications (training's own, of the train and the test robots), a set name selects the
+robots of the specification it names (``test``: the recipe's test robots), never more. Per run,
+one evaluation gives all of the set's scores: the one with the most env steps, then one made
+with the recipe's protocol (``eval.deterministic``), then the most episodes, then the whole
+evaluation over a part of a larger one. Each table states the protocol its numbers come from.
 
-Scores are each seed's mean return per robot. The aggregate of a method on a set is the mean
-over robots of the mean over seeds (optionally the interquartile mean, IQM, of all seed x robot
-scores), with a stratified percentile bootstrap: seeds are resampled within each robot, which is
-what scipy's ``scipy.stats.bootstrap`` does when given one sample per robot. (``rliable`` was the
-first choice; its pinned ``arch`` dependency fails to import with pandas 3, so scipy is used.)
-Performance profiles (the fraction of seed x robot scores above each return threshold) are
-offered as well.
+The aggregate of a method on a set follows rliable's recipe for few runs: each seed's aggregate
+over the set's robots (the mean, or with ``iqm`` the interquartile mean), then the mean of these
+per-seed aggregates, with a stratified percentile bootstrap over seeds: the seeds of each task are
+resampled with replacement and the mean recomputed. Two seeds give an interval between their two
+aggregates; one seed gives none. Per-robot runs (``gcnt sweep --per-robot``) of one seed are that
+seed's scores together. Performance profiles (the fraction of seed x robot scores above each
+return threshold) are offered as well.
 """
 
 from __future__ import annotations
@@ -20,14 +24,35 @@ import json
 import math
 from collections import defaultdict
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gcnt.analysis.runs import AnalysisError, Run, method_key, method_labels
+from gcnt.analysis.runs import (
+    AnalysisError,
+    EvalRecord,
+    Run,
+    method_key,
+    method_labels,
+    protocols_text,
+    score,
+)
 
 STATISTICS = ("mean", "iqm")
+
+
+@dataclass
+class SeedScores:
+    """One seed's scores on a set: a run's, or the per-robot runs' of that seed together."""
+
+    task: str
+    seed: int
+    #: robot -> mean return
+    scores: dict[str, float] = field(default_factory=dict)
+    protocols: list[str] = field(default_factory=list)
+    sources: list[str] = field(default_factory=list)
 
 
 def available_sets(runs: Sequence[Run]) -> list[str]:
@@ -36,87 +61,92 @@ def available_sets(runs: Sequence[Run]) -> list[str]:
     for r in runs:
         for e in r.evals():
             names.append(e.label or "training")
-            spec = e.meta.get("robots_spec") or []
-            names += [spec] if isinstance(spec, str) else [str(s) for s in spec]
+            names += e.specs
     return list(dict.fromkeys(names))
 
 
-def set_scores(runs: Sequence[Run], name: str) -> dict[str, dict[str, list[float]]]:
-    """``{method: {robot: [score per seed]}}`` for the evaluations matching set ``name`` (per run
-    and robot, the evaluation with the most env steps, then episodes)."""
+def set_evaluation(run: Run, evals: Sequence[EvalRecord], name: str):
+    """``(evaluation, robots)``: the one evaluation of ``run`` that gives its scores on set
+    ``name`` and the robots of the set in it (see the module's docstring); None if none has
+    it."""
+    best, best_key = None, None
+    for e in evals:
+        robots = run.set_robots(e, name)
+        if not robots:
+            continue
+        key = (e.env_steps, e.deterministic == run.eval_deterministic, e.episodes, e.matches(name))
+        if best_key is None or key > best_key:
+            best, best_key = (e, robots), key
+    return best
+
+
+def set_scores(runs: Sequence[Run], name: str) -> dict[str, list[SeedScores]]:
+    """``{method: [SeedScores per seed]}`` on set ``name``, in seed order."""
     labels = method_labels(runs)
-    out: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    units: dict[str, dict[tuple, SeedScores]] = defaultdict(dict)
     for r in runs:
-        best: dict[str, tuple[int, int, float]] = {}
-        for e in r.evals():
-            if not e.matches(name):
-                continue
-            for robot, res in e.robots.items():
-                key = (e.env_steps, int(res.get("episodes") or 0), float(res["mean"]))
-                if robot not in best or key[:2] > best[robot][:2]:
-                    best[robot] = key
-        for robot, (_, _, score) in best.items():
-            out[labels[r.path]][robot].append(score)
-    return {m: dict(v) for m, v in out.items()}
+        got = set_evaluation(r, r.evals(), name)
+        if got is None:
+            continue
+        e, robots = got
+        key = (r.task, r.seed) if r.single_robot is not None else (r.task, r.seed, str(r.path))
+        unit = units[labels[r.path]].setdefault(key, SeedScores(r.task, r.seed))
+        unit.scores.update({robot: score(e.robots[robot]) for robot in robots})
+        unit.protocols.append(e.protocol)
+        unit.sources.append(str(e.path))
+    return {
+        m: sorted(v.values(), key=lambda u: (u.task, u.seed, u.sources)) for m, v in units.items()
+    }
 
 
-def _statistic(kind: str):
-    from scipy.stats import trim_mean
-
+def aggregate(scores: Sequence[float], kind: str = "mean") -> float:
+    """One seed's aggregate over a set's robots: the mean, or the interquartile mean (``iqm``:
+    the mean of the middle 50%, scipy's ``trim_mean(x, 0.25)``)."""
+    x = np.asarray(scores, dtype=np.float64)
     if kind == "mean":
+        return float(x.mean())
+    if kind == "iqm":
+        from scipy.stats import trim_mean
 
-        def stat(*samples, axis=-1):
-            return np.mean([np.mean(s, axis=axis) for s in samples], axis=0)
-
-    elif kind == "iqm":
-
-        def stat(*samples, axis=-1):
-            return trim_mean(np.concatenate(samples, axis=axis), 0.25, axis=axis)
-
-    else:
-        raise ValueError(f"unknown statistic {kind!r} (known: {', '.join(STATISTICS)})")
-    return stat
+        return float(trim_mean(x, 0.25))
+    raise ValueError(f"unknown statistic {kind!r} (known: {', '.join(STATISTICS)})")
 
 
 def bootstrap_ci(
-    per_robot: Sequence[Sequence[float]],
-    kind: str = "mean",
+    per_seed: Sequence[float],
+    strata: Sequence[str] | None = None,
     confidence: float = 0.95,
     reps: int = 2000,
     seed: int = 0,
 ) -> tuple[float, float, float]:
-    """(point, low, high) of the statistic over robots with a stratified percentile bootstrap.
-
-    With a single seed per robot the robots themselves are resampled; with a single score the
-    interval is (nan, nan).
-    """
-    from scipy.stats import bootstrap
-
-    samples = [np.asarray(s, dtype=np.float64) for s in per_robot if len(s)]
-    if not samples:
+    """(point, low, high): the mean of the per-seed aggregates and its stratified percentile
+    bootstrap interval (the seeds of each stratum, a task, resampled with replacement, the mean
+    of all recomputed; ``reps`` resamples drawn from ``seed``). No interval (nan) when no stratum
+    has two seeds."""
+    x = np.asarray(per_seed, dtype=np.float64)
+    if x.size == 0:
         return math.nan, math.nan, math.nan
-    stat = _statistic(kind)
-    point = float(stat(*samples))
-    if all(len(s) >= 2 for s in samples):
-        data: tuple = tuple(samples)
-    else:  # one seed: resample robots (their seed-mean scores)
-        data = (np.array([s.mean() for s in samples]),)
-        if len(data[0]) < 2:
-            return point, math.nan, math.nan
-        if kind == "mean":
-            stat = _statistic("mean")
-    if all(np.ptp(d) == 0 for d in data):
-        return point, point, point
-    res = bootstrap(
-        data,
-        stat,
-        n_resamples=reps,
-        confidence_level=confidence,
-        method="percentile",
-        vectorized=True,
-        rng=np.random.default_rng(seed),
+    point = float(x.mean())
+    groups = np.asarray(strata if strata is not None else [""] * len(x))
+    members = [x[groups == g] for g in dict.fromkeys(groups.tolist())]
+    if all(len(v) < 2 for v in members):
+        return point, math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    total = np.zeros(reps)
+    for v in members:
+        total += v[rng.integers(0, len(v), size=(reps, len(v)))].sum(1)
+    means = total / len(x)
+    tail = 100 * (1 - confidence) / 2
+    low, high = np.percentile(means, [tail, 100 - tail])
+    return point, float(low), float(high)
+
+
+def interval_text(confidence: float, reps: int) -> str:
+    """What the intervals are, for captions and tables."""
+    return (
+        f"{confidence:.0%} CI: stratified percentile bootstrap over seeds ({reps} resamples) of "
+        "each seed's aggregate over the set's robots (rliable's interval for few runs)"
     )
-    return point, float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def variant_summary(
@@ -125,8 +155,10 @@ def variant_summary(
     statistics: Sequence[str] = ("mean",),
     confidence: float = 0.95,
     reps: int = 2000,
+    seed: int = 0,
 ) -> dict[str, Any]:
-    """``{set: {method: {"robots", "seeds", "scores", stat: {"point","low","high"}}}}``."""
+    """``{set: {method: {"robots", "seeds", "scores": {seed: {robot: score}}, "protocol",
+    "interval", stat: {"point", "low", "high", "per_seed"}}}}``."""
     out: dict[str, Any] = {}
     for name in sets:
         scores = set_scores(runs, name)
@@ -134,15 +166,30 @@ def variant_summary(
             continue
         entry = {}
         for m in sorted(scores, key=method_key):
-            per_robot = scores[m]
+            units = scores[m]
+            tasks = {u.task for u in units}
+            ids = [f"{u.task}/seed{u.seed}" if len(tasks) > 1 else f"seed{u.seed}" for u in units]
             item: dict[str, Any] = {
-                "robots": len(per_robot),
-                "seeds": max(len(v) for v in per_robot.values()),
-                "scores": per_robot,
+                "robots": len({(u.task, robot) for u in units for robot in u.scores}),
+                "seeds": len(units),
+                "scores": dict(zip(ids, (u.scores for u in units), strict=True)),
+                "protocol": protocols_text(p for u in units for p in u.protocols),
+                "interval": interval_text(confidence, reps),
+                "sources": [src for u in units for src in u.sources],
             }
+            if len({len(u.scores) for u in units}) > 1:
+                item["robots_per_seed"] = dict(
+                    zip(ids, (len(u.scores) for u in units), strict=True)
+                )
             for kind in statistics:
-                p, lo, hi = bootstrap_ci(list(per_robot.values()), kind, confidence, reps)
-                item[kind] = {"point": p, "low": lo, "high": hi}
+                per_seed = [aggregate(list(u.scores.values()), kind) for u in units]
+                p, lo, hi = bootstrap_ci(per_seed, [u.task for u in units], confidence, reps, seed)
+                item[kind] = {
+                    "point": p,
+                    "low": lo,
+                    "high": hi,
+                    "per_seed": dict(zip(ids, per_seed, strict=True)),
+                }
             entry[m] = item
         out[name] = entry
     if not out:
@@ -159,7 +206,7 @@ def performance_profile(
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """(thresholds, {method: fraction of seed x robot scores above each threshold})."""
     flat = {
-        m: np.array([s for v in item["scores"].values() for s in v])
+        m: np.array([s for seed in item["scores"].values() for s in seed.values()])
         for m, item in summary[name].items()
     }
     allv = np.concatenate(list(flat.values()))
@@ -175,10 +222,9 @@ def plot(
 ) -> Path:
     """A panel per (statistic, set): each method's point estimate with its interval; with
     ``profile`` a row of performance profiles below."""
-    import matplotlib
+    from gcnt.analysis.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     sets = list(summary)
     methods = sorted({m for s in summary.values() for m in s}, key=method_key)
@@ -213,35 +259,53 @@ def plot(
             ax.set_ylabel("fraction of runs > τ")
             ax.legend(fontsize="small")
             ax.grid(alpha=0.3)
-    fig.tight_layout()
+    first = next(iter(next(iter(summary.values())).values()))
+    per_set = {n: protocols_text(i["protocol"] for i in e.values()) for n, e in summary.items()}
+    if len(set(per_set.values())) == 1:
+        protocol = next(iter(per_set.values()))
+    else:
+        protocol = "; ".join(f"{n}: {text}" for n, text in per_set.items())
+    caption = f"{first['interval']}.\nEvaluation: {protocol}."
+    fig.text(0.01, 0.005, caption, fontsize="x-small", va="bottom", wrap=True)
+    fig.tight_layout(rect=(0, 0.09 if nrows == 1 else 0.05, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
 
 
+def _cell(e: dict[str, float]) -> str:
+    if e["low"] == e["low"]:
+        return f"{e['point']:.1f} [{e['low']:.1f}, {e['high']:.1f}]"
+    return f"{e['point']:.1f} [no interval: 1 seed]"
+
+
 def to_markdown(summary: dict[str, Any], statistics: Sequence[str] = ("mean",)) -> str:
+    """A table per set: per method the robots, seeds, each statistic with its interval and the
+    protocol of its evaluations; what the interval is and the set's protocol above it."""
     lines = []
     for name, entry in summary.items():
-        lines.append(f"### {name}\n")
-        head = " | ".join(f"{k} [95% CI]" for k in statistics)
+        first = next(iter(entry.values()))
+        protocol = protocols_text(item["protocol"] for item in entry.values())
+        lines += [f"### {name}\n", f"{first['interval']}. Evaluation: {protocol}.\n"]
+        head = " | ".join(f"{k} [CI]" for k in statistics)
         lines += [
-            f"| method | robots | seeds | {head} |",
-            "|---|---:|---:|" + "---:|" * len(statistics),
+            f"| method | robots | seeds | {head} | evaluation |",
+            "|---|---:|---:|" + "---:|" * len(statistics) + "---|",
         ]
         for m, item in entry.items():
-            cells = []
-            for k in statistics:
-                e = item[k]
-                cells.append(f"{e['point']:.1f} [{e['low']:.1f}, {e['high']:.1f}]")
+            cells = " | ".join(_cell(item[k]) for k in statistics)
             lines.append(
-                f"| {m} | {item['robots']} | {item['seeds']} | " + " | ".join(cells) + " |"
+                f"| {m} | {item['robots']} | {item['seeds']} | {cells} | {item['protocol']} |"
             )
         lines.append("")
     return "\n".join(lines)
 
 
 def write_json(summary: dict[str, Any], path: Path) -> Path:
+    """The summary as strict JSON (no interval: ``null``)."""
+    from gcnt.rl.run_dir import strict_json
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary, indent=1))
+    path.write_text(json.dumps(strict_json(summary), indent=1, allow_nan=False))
     return path

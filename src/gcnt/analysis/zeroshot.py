@@ -1,8 +1,11 @@
 """Zero-shot table (paper table 1): return on unseen test robots, per robot and method.
 
-Per run (one seed) and test robot, the evaluation with the most environment steps (then the most
-episodes) that covers the robot gives that seed's mean return; a cell is the mean ± standard error
-of those per-seed means over seeds. The best method of each row is marked.
+Per run (one seed) and test robot, the evaluation with the most environment steps that covers the
+robot gives that seed's mean return; between equals, one made with the run's recipe protocol
+(``eval.deterministic``), then the one with the most episodes, then a test evaluation (``gcnt eval
+--robots test``). A cell is the mean ± standard error of those per-seed means over seeds, and
+says which protocol (deterministic or sampled actions, episodes per robot) they come from. The
+best method of each row is marked.
 """
 
 from __future__ import annotations
@@ -20,27 +23,42 @@ from gcnt.analysis.runs import (
     mean_stderr,
     method_key,
     method_labels,
+    protocols_text,
+    score,
 )
 
 
 def seed_score(
-    evals: Sequence[EvalRecord], robot: str, label: str | None = None
+    evals: Sequence[EvalRecord],
+    robot: str,
+    label: str | None = None,
+    deterministic: bool | None = None,
+    run: Run | None = None,
 ) -> tuple[float, EvalRecord] | None:
     """A run's mean return on ``robot`` from its latest, largest evaluation of it (``evals``: the
-    run's evaluations, ``Run.evals()``); between equals, a test evaluation (``gcnt eval --robots
-    test``) wins over the one made during training."""
-    evals = [e for e in evals if robot in e.robots and (label is None or e.matches(label))]
+    run's evaluations, ``Run.evals()``); between equal steps, one with ``deterministic`` actions
+    as asked (the run's recipe protocol) wins, then the one with more episodes, then a test
+    evaluation (``gcnt eval --robots test``) over the one made during training. ``label``: only
+    evaluations of that set (with ``run``: also the part of a larger evaluation it names)."""
+
+    def named(e: EvalRecord) -> bool:
+        if label is None or e.matches(label):
+            return True
+        return run is not None and robot in run.set_robots(e, label)
+
+    evals = [e for e in evals if robot in e.robots and named(e)]
     if not evals:
         return None
     best = max(
         evals,
         key=lambda e: (
             e.env_steps,
-            int(e.robots[robot].get("episodes") or 0),
+            deterministic is not None and e.deterministic == deterministic,
+            e.episodes,
             e.matches("test"),
         ),
     )
-    return float(best.robots[robot]["mean"]), best
+    return score(best.robots[robot]), best
 
 
 def test_robots(runs: Sequence[Run]) -> list[str]:
@@ -73,14 +91,15 @@ def zero_shot_table(
             row = {}
             for m in methods:
                 per_seed = {}
-                sources = []
+                sources, protocols = [], []
                 for r in members:
                     if labels[r.path] != m:
                         continue
-                    got = seed_score(evals[r.path], robot, label)
+                    got = seed_score(evals[r.path], robot, label, r.eval_deterministic, r)
                     if got is not None:
                         per_seed[str(r.seed)] = got[0]
                         sources.append(str(got[1].path))
+                        protocols.append(got[1].protocol)
                 if per_seed:
                     mean, se = mean_stderr(list(per_seed.values()))
                     row[m] = {
@@ -89,6 +108,7 @@ def zero_shot_table(
                         "seeds": len(per_seed),
                         "per_seed": per_seed,
                         "sources": sources,
+                        "protocol": protocols_text(protocols),
                     }
             if row:
                 cells[robot] = row
@@ -97,7 +117,14 @@ def zero_shot_table(
         best = {
             robot: max(row, key=lambda m, row=row: row[m]["mean"]) for robot, row in cells.items()
         }
-        out[task] = {"robots": list(cells), "methods": methods, "cells": cells, "best": best}
+        protocol = protocols_text(c["protocol"] for row in cells.values() for c in row.values())
+        out[task] = {
+            "robots": list(cells),
+            "methods": methods,
+            "cells": cells,
+            "best": best,
+            "protocol": protocol,
+        }
     if not out:
         raise AnalysisError(
             "no evaluation of a test robot in these runs: run `gcnt eval RUN_DIR --robots test` "
@@ -121,6 +148,7 @@ def to_markdown(table: dict[str, Any]) -> str:
         methods = t["methods"]
         seeds = sorted({c["seeds"] for row in t["cells"].values() for c in row.values()})
         parts.append(f"### {task} (mean ± s.e. over {'/'.join(map(str, seeds))} seeds)\n")
+        parts.append(f"Evaluation: {t.get('protocol', 'not recorded')}.\n")
         parts.append("| robot | " + " | ".join(methods) + " |")
         parts.append("|---|" + "---:|" * len(methods))
         for robot in t["robots"]:
@@ -132,8 +160,11 @@ def to_markdown(table: dict[str, Any]) -> str:
 
 
 def write(table: dict[str, Any], out: Path, stem: str = "zeroshot") -> tuple[Path, Path]:
+    """``<stem>.md`` and ``<stem>.json`` (strict JSON: a missing standard error is ``null``)."""
+    from gcnt.rl.run_dir import strict_json
+
     out.mkdir(parents=True, exist_ok=True)
     md, js = out / f"{stem}.md", out / f"{stem}.json"
     md.write_text(to_markdown(table))
-    js.write_text(json.dumps(table, indent=1))
+    js.write_text(json.dumps(strict_json(table), indent=1, allow_nan=False))
     return md, js

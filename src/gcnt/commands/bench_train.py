@@ -1,6 +1,7 @@
 """``gcnt bench-train``: what the training pipeline costs on top of the learning itself.
 
-In one run: (1) the bare TD3 update rate (same networks, same mini-batch, no env, no buffer) and
+Default recipe: the quick start (``recipes/quickstart.yaml``: short episodes, so that the paper
+schedule, which updates when episodes end, updates within the timed window). In one run: (1) the bare TD3 update rate (same networks, same mini-batch, no env, no buffer) and
 (2) ``gcnt train`` with the same recipe end to end, measured after the random-exploration phase:
 environment steps per second and updates per second. The ratio of end-to-end to bare updates/s is
 the fraction of time spent learning; 1.0 means the env, collector and buffers cost nothing. With
@@ -24,7 +25,9 @@ import time
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recipe", nargs="?", default="recipes/smpenv/walker.yaml")
+    p.add_argument(
+        "recipe", nargs="?", default="recipes/quickstart.yaml", help="(default: %(default)s)"
+    )
     p.add_argument("overrides", nargs="*", help="dotted recipe overrides")
     p.add_argument("--updates", type=int, default=30, help="bare updates to time")
     p.add_argument("--steps", type=int, default=400, help="env steps to time end to end")
@@ -135,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
 
     recipe = load_recipe(args.recipe, args.overrides)
+    if not args.json:
+        print(f"recipe: {args.recipe} ({recipe.algo}, {recipe.network.name})")
     if recipe.algo == "ppo":
         return run_ppo(args, recipe)
     if recipe.algo != "td3":
@@ -255,7 +260,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             "end_to_end_updates_per_s": e2e["updates_per_s"],
             "updates": e2e["updates"],
             # time per update end to end vs bare: what the env, collector and replay add
-            "ratio": e2e["updates_per_s"] / bare,
+            "ratio": e2e["updates_per_s"] / bare if e2e["updates"] else float("nan"),
         }
     if args.json:
         print(json.dumps(out))
@@ -266,6 +271,12 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         f"{rs['ensemble']:.2f} ms, one storage {rs['one_storage']:.2f} ms"
     )
     for schedule, row in out["schedules"].items():
+        if not row["updates"]:
+            print(
+                f"{schedule:6s} no update in the {args.steps} timed env steps (the paper schedule "
+                "updates when episodes end): raise --steps, or use a recipe with shorter episodes"
+            )
+            continue
         print(
             f"{schedule:6s} bare TD3 update {row['bare_updates_per_s']:8.2f} updates/s; end to "
             f"end {row['end_to_end_env_steps_per_s']:8.2f} env steps/s, "

@@ -1,11 +1,14 @@
 """``gcnt curves DIR...``: learning curves (paper figures 6, 7, 9) from run directories.
 
 One panel per task, one line per method: mean ± standard error over seeds against environment
-steps, seeds aggregated at equal step counts by interpolation. Per-robot runs (``gcnt sweep
---per-robot``: SR-fair, SR-top) are averaged over the robots of each seed first; a recipe's
-``label`` names its line. Several directories go into the same figure (e.g. a world's universal
-sweep and its SR sweep). Writes ``curves.png`` and ``curves.csv`` (to ``--out``, default
-``<DIR>/figures``).
+steps, at the logged steps (seeds that log at different steps interpolated onto the union of
+their steps), each marked. ``--metric eval`` plots the return of the evaluations made during
+training (``eval/step<N>.json``, the curve of the paper's figures) instead of the exploring
+training return; a dotted line marks the end of TD3's random-action phase. Per-robot runs
+(``gcnt sweep --per-robot``: SR-fair, SR-top) are averaged over the robots of each seed first; a
+recipe's ``label`` names its line. Several directories go into the same figure (e.g. a world's
+universal sweep and its SR sweep). Writes ``curves.png`` and ``curves.csv`` (to ``--out``,
+default ``<DIR>/figures``).
 """
 
 from __future__ import annotations
@@ -19,26 +22,46 @@ log = logging.getLogger(__name__)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="DIR", help="run or sweep directories")
-    p.add_argument("--metric", default="train_return/mean", help="metrics.jsonl column to plot")
-    p.add_argument("--points", type=int, default=100, help="grid points per curve (default 100)")
+    p.add_argument(
+        "--metric",
+        default="train_return/mean",
+        help="a metrics.jsonl column (default train_return/mean, the exploring training "
+        "return), or eval: the training evaluations' return over the training robots "
+        "(eval/ROBOT: one robot)",
+    )
+    p.add_argument(
+        "--points",
+        type=int,
+        help="an even grid of N steps per curve (default: the logged steps)",
+    )
     p.add_argument("--smooth", type=int, default=1, help="moving average over N log rows (off)")
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", default="curves", help="file name stem (default: curves)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt.analysis.curves import learning_curves, plot_curves, write_csv
+    from gcnt.analysis import curves as C
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs
 
     try:
+        if args.points is not None and args.points < 2:
+            raise AnalysisError(f"--points must be >= 2, got {args.points}")
         runs = find_runs(args.paths)
-        rows = learning_curves(runs, args.metric, args.points, max(1, args.smooth))
+        rows = C.learning_curves(runs, args.metric, args.points, max(1, args.smooth))
     except AnalysisError as e:
         log.error("%s", e)
         return 2
     out = args.out or default_out(args.paths)
-    png = plot_curves(rows, out / f"{args.name}.png", args.metric)
-    csv = write_csv(rows, out / f"{args.name}.csv")
+    ylabel = C.metric_label(runs, args.metric)
+    png = C.plot_curves(
+        rows,
+        out / f"{args.name}.png",
+        args.metric,
+        ylabel=ylabel,
+        random_until=C.random_phase(runs),
+    )
+    print(ylabel.replace("\n", "; "))
+    csv = C.write_csv(rows, out / f"{args.name}.csv")
     groups = list(dict.fromkeys((r["task"], r["method"], r["seeds"], r["robots"]) for r in rows))
     for task, method, seeds, robots in groups:
         last = [r for r in rows if r["task"] == task and r["method"] == method][-1]

@@ -1,6 +1,7 @@
 """``gcnt embed [RUN_DIR...] [--untrained gcnt,swat]``: t-SNE of per-limb structural vectors
 (paper figure 10): GCNT's projected [GCN ‖ WL] features and SWAT's traversal embeddings of every
-limb of the CWHH++ robots, colour = limb type, marker = robot, side by side.
+limb of the CWHH++ robots, side by side: marker = robot family, colour = limb type, with one
+legend for each below the panels.
 
 Runs give trained networks (in a sweep directory, the first seed of each GCNT/SWAT method);
 without runs, or with ``--untrained``, freshly initialised networks. Writes ``embed.png``.

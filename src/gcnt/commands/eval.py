@@ -1,7 +1,11 @@
-"""``gcnt eval RUN_DIR [--robots test|train|NAME|PATH ...] [--episodes N] [--stochastic]``.
+"""``gcnt eval RUN_DIR [--robots test|train|NAME|PATH ...] [--episodes N]
+[--deterministic | --stochastic]``.
 
-Every evaluation is kept: ``eval/<robots>-step<N>-<mode>.json`` in the run directory says what
-was evaluated (robots, episodes, seed, deterministic or sampled actions).
+Actions follow the run's recipe (``eval.deterministic``: the policy's mean action, or sampled
+actions as in ModuMorph's PPO protocol) unless a flag says otherwise; the episodes default to
+100 deterministic or 32 sampled ones per robot. Every evaluation is kept:
+``eval/<robots>-step<N>-<det|stoch>-seed<S>.json`` in the run directory says what was evaluated
+(robots, episodes, seed, deterministic or sampled actions).
 """
 
 from __future__ import annotations
@@ -10,6 +14,8 @@ import argparse
 import logging
 import re
 from pathlib import Path
+
+from gcnt.cli import existing_run_dir
 
 log = logging.getLogger(__name__)
 
@@ -27,15 +33,44 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--episodes",
         type=int,
         default=None,
-        help="episodes per robot (default: 100 deterministic, 32 with --stochastic)",
+        help="episodes per robot (default: 100 deterministic, 32 stochastic)",
     )
     p.add_argument("--seed", type=int, default=10_000, help="evaluation seed")
-    p.add_argument(
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--deterministic",
+        dest="deterministic",
+        action="store_const",
+        const=True,
+        default=None,
+        help="the policy's mean action (default: the recipe's eval.deterministic)",
+    )
+    mode.add_argument(
         "--stochastic",
-        action="store_true",
-        help="sample actions from the policy (ModuMorph's PPO protocol) instead of its mean",
+        dest="deterministic",
+        action="store_const",
+        const=False,
+        help="sample actions from the policy (ModuMorph's PPO protocol; default: the recipe's "
+        "eval.deterministic)",
     )
     p.add_argument("--json", metavar="PATH", help="also write the results to PATH")
+    p.add_argument(
+        "--video",
+        action="store_true",
+        help="instead of evaluating, record one deterministic rollout per robot to "
+        "videos/<robot>-step<N>.mp4 (the recipe and evaluations are left as they are)",
+    )
+
+
+def protocol(recipe, deterministic: bool | None) -> bool:
+    """Deterministic actions or not: as asked, else as the recipe's ``eval.deterministic``."""
+    return bool(recipe.eval.deterministic) if deterministic is None else deterministic
+
+
+def default_episodes(deterministic: bool) -> int:
+    """Episodes per robot when none are asked for: the paper's 100 deterministic episodes, or
+    ModuMorph's 32 with sampled actions."""
+    return 100 if deterministic else 32
 
 
 def _label(specs: list[str]) -> str:
@@ -45,16 +80,18 @@ def _label(specs: list[str]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcnt.analysis.runs import protocol_text
     from gcnt.recipes import RecipeError
     from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
     from gcnt.rl.loop import check_network
     from gcnt.rl.run_dir import CheckpointError, RunDir
 
-    episodes = args.episodes if args.episodes is not None else (32 if args.stochastic else 100)
+    run_dir = RunDir(existing_run_dir(args.run_dir))
+    recipe = run_dir.load_recipe()
+    deterministic = protocol(recipe, args.deterministic)
+    episodes = args.episodes if args.episodes is not None else default_episodes(deterministic)
     if episodes < 1:
         raise RecipeError(f"--episodes must be >= 1, got {episodes}")
-    run_dir = RunDir(args.run_dir)
-    recipe = run_dir.load_recipe()
     specs: list[str] = []
     for spec in args.robots:
         if spec == "test":
@@ -68,18 +105,22 @@ def run(args: argparse.Namespace) -> int:
             "no robots to evaluate (the recipe has no test robots; pass --robots ...)"
         )
     check_network(recipe)
+    robots = _check_benchmark(recipe, run_dir, specs)
     state = run_dir.load_checkpoint()
     policy = state.get("policy") or {"actor": state["actor"]}  # "actor": checkpoints before 0.2
-    deterministic = not args.stochastic
+    if args.video:
+        return _videos(recipe, run_dir, policy, robots, state["env_steps"])
     try:
         results = evaluate(
             recipe, policy, specs, episodes=episodes, seed=args.seed, deterministic=deterministic
         )
     except PolicyMismatchError as e:
         raise CheckpointError(f"{run_dir.checkpoint_path}: {e}") from None
+    print(protocol_text(deterministic, episodes))
     print(format_table(results))
     meta = {
         "robots_spec": args.robots,
+        "resolved_specs": specs,
         "episodes": episodes,
         "seed": args.seed,
         "deterministic": deterministic,
@@ -90,4 +131,23 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_eval(Path(args.json), results, state["env_steps"], meta)
     print(f"written: {out}")
+    return 0
+
+
+def _check_benchmark(recipe, run_dir, specs: list[str]) -> list:
+    """The robots of ``specs``; a RecipeError naming the first one of another benchmark than
+    the run's (its env cannot step that robot)."""
+    from gcnt.rl.evaluate import eval_robots
+    from gcnt.rl.factories import check_benchmark
+
+    return check_benchmark(recipe, eval_robots(specs), f"--robots of run {run_dir.path}")
+
+
+def _videos(recipe, run_dir, policy: dict, robots: list, env_steps: int) -> int:
+    """One deterministic rollout video per robot, under the run's ``videos/``."""
+    from gcnt.rl.evaluate import render_policy
+
+    for robot in robots:
+        path = run_dir.path / "videos" / f"{robot.name}-step{env_steps}.mp4"
+        print(f"written: {render_policy(recipe, policy, path, robot=robot)}")
     return 0

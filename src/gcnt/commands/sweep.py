@@ -80,7 +80,28 @@ def _options(p: argparse.ArgumentParser) -> None:
         help="after training, `gcnt eval RUN --robots ROBOTS` (test, train, a robot, "
         "Benchmark:split); repeatable",
     )
-    p.add_argument("--episodes", type=int, default=100, help="episodes per robot for --eval (100)")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="episodes per robot for --eval (default: gcnt eval's, 100 deterministic or 32 "
+        "sampled)",
+    )
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--deterministic",
+        dest="eval_deterministic",
+        action="store_const",
+        const=True,
+        help="--eval with deterministic actions (default: each run's eval.deterministic)",
+    )
+    mode.add_argument(
+        "--stochastic",
+        dest="eval_deterministic",
+        action="store_const",
+        const=False,
+        help="--eval with sampled actions (default: each run's eval.deterministic)",
+    )
     p.add_argument("--status", action="store_true", help="print the manifest's states and exit")
     p.add_argument("--dry-run", action="store_true", help="write the manifest, print, run nothing")
     local = p.add_argument_group("local pool")
@@ -160,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
                 for r in manifest.runs:
                     r.evals = list(dict.fromkeys([*r.evals, *args.eval]))
                     r.eval_episodes = args.episodes
+                    r.eval_deterministic = args.eval_deterministic
         else:
             bad = [r for r in recipes if not Path(r).is_file()]
             if bad:
@@ -177,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
                 overrides=overrides,
                 evals=args.eval,
                 eval_episodes=args.episodes,
+                eval_deterministic=args.eval_deterministic,
                 group=args.group,
                 per_robot=args.per_robot,
             )

@@ -1,10 +1,12 @@
 """``gcnt train RECIPE [key=value ...]``, ``gcnt train RECIPE --seeds 0,1,2 [key=value ...]`` and
-``gcnt train --resume RUN_DIR [key=value ...]``."""
+``gcnt train --resume RUN_DIR [key=value ...]`` (options and overrides in any order)."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+
+from gcnt.cli import existing_run_dir
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_seeds(args)
     if args.resume:
         overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
-        run_dir = RunDir(args.resume)
+        run_dir = RunDir(existing_run_dir(args.resume))
         recipe = run_dir.load_recipe(overrides)
         resume = run_dir.has_checkpoint()
         if not resume:

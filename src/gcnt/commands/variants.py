@@ -1,9 +1,15 @@
-"""``gcnt variants DIR... --sets variants-kinematics,variants-dynamics``: returns on robot variant sets (paper
-figure 8) per method, with 95% stratified bootstrap confidence intervals (scipy).
+"""``gcnt variants DIR... --sets variants-kinematics,variants-dynamics``: returns on robot variant
+sets (paper figure 8) per method, with 95% confidence intervals from a stratified bootstrap over
+seeds of each seed's aggregate over the set's robots (rliable's interval for few runs).
 
-A set name matches an evaluation's label or part of its robot spec (``gcnt eval RUN --robots
-SPEC``). ``--iqm`` adds the interquartile mean, ``--profile`` performance profiles. Writes
-``variants.png``, ``variants.md`` and ``variants.json``.
+A set name is an evaluation's label, its robot spec or the spec's split (``gcnt eval RUN --robots
+SPEC``); inside a larger evaluation it selects the robots of the spec it names, never more.
+Tables say which protocol (deterministic or sampled actions, episodes per robot) the numbers come
+from. The figure is the paper's figure 8: a group of bars per method with 95% CI error bars, one
+panel per set (:mod:`gcnt.analysis.bars`); ``--panels`` also writes the rliable-style panels
+(point estimates with intervals, ``--profile``: and performance profiles) as
+``variants-panels.png``. ``--iqm`` adds the interquartile mean. Writes ``variants.png``,
+``variants.md`` and ``variants.json``.
 """
 
 from __future__ import annotations
@@ -23,8 +29,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="comma-separated evaluation labels / robot specs (default: variants-kinematics,variants-dynamics, the UNIMAL splits)",
     )
     p.add_argument("--iqm", action="store_true", help="also the interquartile mean (IQM)")
-    p.add_argument("--profile", action="store_true", help="also performance profiles")
+    p.add_argument(
+        "--panels",
+        action="store_true",
+        help="also the rliable-style interval panels (<name>-panels.png)",
+    )
+    p.add_argument(
+        "--profile", action="store_true", help="with --panels: also performance profiles"
+    )
     p.add_argument("--reps", type=int, default=2000, help="bootstrap resamples (default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap's draws (0)")
     p.add_argument("--confidence", type=float, default=0.95, help="interval level (0.95)")
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", default="variants", help="file name stem (default: variants)")
@@ -38,12 +52,21 @@ def run(args: argparse.Namespace) -> int:
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
     try:
         runs = find_runs(args.paths)
-        summary = V.variant_summary(runs, sets, stats, args.confidence, args.reps)
+        if args.reps < 1 or not 0 < args.confidence < 1:
+            raise AnalysisError(
+                f"--reps must be >= 1 and --confidence in (0, 1); got {args.reps}, "
+                f"{args.confidence}"
+            )
+        summary = V.variant_summary(runs, sets, stats, args.confidence, args.reps, args.seed)
     except AnalysisError as e:
         log.error("%s", e)
         return 2
     out = args.out or default_out(args.paths)
-    png = V.plot(summary, out / f"{args.name}.png", stats, args.profile)
+    from gcnt.analysis.bars import plot_bars
+
+    png = plot_bars(summary, out / f"{args.name}.png", stats)
+    if args.panels or args.profile:
+        V.plot(summary, out / f"{args.name}-panels.png", stats, args.profile)
     md = out / f"{args.name}.md"
     md.write_text(V.to_markdown(summary, stats))
     js = V.write_json(summary, out / f"{args.name}.json")

@@ -1,9 +1,10 @@
 """``gcnt zeroshot DIR...``: the zero-shot table (paper table 1) from run directories.
 
 Per test robot, mean ± standard error over seeds of each seed's mean return; the best method of
-each row in bold. Reads the runs' evaluations (``eval/*.json``); ``--evaluate`` first runs
-``gcnt eval RUN --robots test --episodes N`` on every run that has none. Writes
-``zeroshot.md`` and ``zeroshot.json``.
+each row in bold; each table says which protocol (deterministic or sampled actions, episodes per
+robot) its numbers come from. Reads the runs' evaluations (``eval/*.json``); ``--evaluate`` first
+runs ``gcnt eval RUN --robots test`` (the recipe's protocol; ``--episodes N``) on every run that
+has none. Writes ``zeroshot.md`` and ``zeroshot.json``.
 """
 
 from __future__ import annotations
@@ -26,11 +27,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="first run `gcnt eval RUN --robots test` on runs without a test evaluation",
     )
     p.add_argument("--force", action="store_true", help="with --evaluate: evaluate every run")
-    p.add_argument("--episodes", type=int, default=100, help="episodes per robot (default 100)")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        help="with --evaluate: episodes per robot (default: 100 deterministic, 32 stochastic, "
+        "as the recipe's eval.deterministic)",
+    )
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
 
 
-def _evaluate(runs, episodes: int, force: bool) -> int:
+def _evaluate(runs, episodes: int | None, force: bool) -> int:
     import os
 
     from gcnt.analysis.zeroshot import seed_score
@@ -50,11 +56,11 @@ def _evaluate(runs, episodes: int, force: bool) -> int:
         ):
             continue
         argv = [*gcnt_command(), "eval", str(r.path), "--robots", "test"]
+        if episodes is not None:
+            argv += ["--episodes", str(episodes)]
         print(f"evaluating {r.path} ...", flush=True)
         threads = int(os.environ.get("OMP_NUM_THREADS", "1"))
-        rc = subprocess.run(
-            [*argv, "--episodes", str(episodes)], env=pinned_env(threads)
-        ).returncode
+        rc = subprocess.run(argv, env=pinned_env(threads)).returncode
         failures += rc != 0
     return failures
 

@@ -22,6 +22,7 @@ from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.factories import base_env, make_env
+from gcnt.rl.run_dir import strict_json
 
 
 class PolicyMismatchError(ValueError):
@@ -123,12 +124,21 @@ def evaluate(
 
 @torch.no_grad()
 def render_policy(
-    recipe: Recipe, policy_state: dict, path: Path, *, robot: str | None = None, steps: int = 300
+    recipe: Recipe,
+    policy_state: dict,
+    path: Path,
+    *,
+    robot: str | Robot | None = None,
+    steps: int = 300,
 ) -> Path:
-    """A video of the deterministic policy on ``robot`` (default: the first training robot)."""
+    """A video of the deterministic policy on ``robot`` (a robot, or a spec whose first robot
+    is filmed; default: the first training robot)."""
     from gcnt.envs.render import render_rollout
 
-    robots = eval_robots([robot]) if robot else resolve_robots(recipe.env.robots)[:1]
+    if isinstance(robot, Robot):
+        robots = [robot]
+    else:
+        robots = (eval_robots([robot]) if robot else resolve_robots(recipe.env.robots))[:1]
     env = make_env(recipe, robots, seed=recipe.seed, max_limbs=_pad(recipe, robots), num_threads=1)
     actor = get_algorithm(recipe.algo).eval_policy(recipe, policy_state, env, deterministic=True)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -146,13 +156,14 @@ def summarize(returns: Sequence[float]) -> dict:
 def write_eval(
     path: Path, results: dict[str, dict], env_steps: int | None = None, meta: dict | None = None
 ) -> Path:
-    """Write results as ``{"env_steps", **meta, "robots": {name: summary}}`` (atomically)."""
+    """Write results as ``{"env_steps", **meta, "robots": {name: summary}}`` (atomically), as
+    strict JSON: a non-finite value (the standard error of one episode) is ``null``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     out = {"env_steps": env_steps, **(meta or {}), "robots": results}
     if results:
         out["over_robots"] = summarize_robots(results)
-    tmp.write_text(json.dumps(out, indent=1))
+    tmp.write_text(json.dumps(strict_json(out), indent=1, allow_nan=False))
     tmp.replace(path)
     return path
 

@@ -35,7 +35,20 @@ def train_robots(recipe: Recipe) -> list[Robot]:
     """The recipe's training robots (a repeated robot is an error: use ``env.copies``)."""
     if not recipe.env.robots:
         raise RecipeError("env.robots is empty: name at least one robot to train on")
-    return resolve_robots(recipe.env.robots)
+    return check_benchmark(recipe, resolve_robots(recipe.env.robots), "env.robots")
+
+
+def check_benchmark(recipe: Recipe, robots: Sequence[Robot], where: str) -> list[Robot]:
+    """``robots`` if the recipe's benchmark can step them all; else a RecipeError naming the
+    first robot of another benchmark (``where``: what named them, for the message)."""
+    bench = benchmark_of(recipe)
+    for robot in robots:
+        if robot.catalogue != bench.catalogue:
+            raise RecipeError(
+                f"{where}: robot {robot.name!r} is a {robot.catalogue} robot, but this is a "
+                f"{bench.name} run (env.benchmark={bench.name}); use a recipe of its benchmark"
+            )
+    return list(robots)
 
 
 def make_env(

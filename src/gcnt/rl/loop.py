@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterable
@@ -123,8 +124,12 @@ def prepare(recipe: Recipe) -> Prepared:
     env = algo_cls.make_train_env(recipe, robots)
     try:
         algo = algo_cls(recipe, env, robots)
-    except BaseException:
+    except BaseException as e:
         env.close()
+        if type(e) is ValueError:  # what the network builder says about the robots it was given
+            raise RecipeError(
+                f"network {recipe.network.name!r} on {benchmark_of(recipe).name} robots: {e}"
+            ) from None
         raise
     recipe.resolved = algo.resolved()
     return Prepared(robots, env, algo)
@@ -139,12 +144,14 @@ def train(
     """
     prepared = prepared or prepare(recipe)
     robots, env, algo = prepared.robots, prepared.env, prepared.algo
+    t0 = time.perf_counter()
 
     env_steps = resume_checkpoint(run, algo, recipe.device) if resume else 0
-    run.save_recipe(recipe)  # after the checkpoint was found to fit it
+    start, total = env_steps, recipe.collector.total_frames
+    if not resume or env_steps < total:  # a finished run's recipe is left as it was
+        run.save_recipe(recipe)  # after the checkpoint was found to fit it
     if resume:
         env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume
-    total = recipe.collector.total_frames
     cadence = Cadence(recipe, env_steps)
     logger = make_logger(recipe, run)
     stats = TrainStats([robot.name for robot in robots], env_steps, algo.updates)
@@ -154,18 +161,18 @@ def train(
         collector = make_collector(recipe, env, settings)
         if multi:
             env.close()  # the workers build their own envs
-        bar = tqdm(total=total, initial=env_steps, unit="step", disable=not recipe.logger.progress)
+        bar = progress_bar(recipe, total, env_steps)
         # log lines go above the progress bar instead of through it
         with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
             try:
                 for data in collector:
                     env_steps += data.numel()
-                    bar.update(data.numel())
                     stats.add_episodes(data)
                     row = after_update(
                         recipe, run, algo, logger, stats, cadence,
                         algo.process(data, env_steps), env_steps,
                     )  # fmt: skip
+                    bar.update(data.numel())  # 100% once the last batch's update is done
                     if multi:
                         collector.update_policy_weights_()
                     if row is not None:
@@ -176,10 +183,48 @@ def train(
                 bar.close()
                 collector.shutdown()
     else:
-        log.info("%s already trained %d of %d env steps; nothing to do", run.path, env_steps, total)
+        log.info(
+            "%s already trained %d of %d env steps; nothing to do (a video: gcnt eval %s "
+            "--video)", run.path, env_steps, total, run.path,
+        )  # fmt: skip
         env.close()
-    finish(recipe, run, algo, logger, env_steps)
+        if _eval_path(run, env_steps).exists():  # its final evaluation is kept as it is
+            finish(recipe, run, algo, logger, env_steps, evaluate_now=False)
+            return run
+    train_s = time.perf_counter() - t0
+    results = finish(recipe, run, algo, logger, env_steps)
+    log_summary(run, env_steps - start, train_s, time.perf_counter() - t0, results)
     return run
+
+
+def progress_bar(recipe: Recipe, total: int, env_steps: int) -> tqdm:
+    """The terminal progress bar (``logger.progress``); off when stderr is not a terminal, so
+    that a log file gets the log lines (one per ``logger.log_interval``) and no carriage
+    returns."""
+    on = recipe.logger.progress and sys.stderr.isatty()
+    return tqdm(total=total, initial=env_steps, unit="step", disable=not on)
+
+
+def log_summary(
+    run: RunDir, env_steps: int, train_s: float, wall_s: float, results: dict | None
+) -> None:
+    """The end of training in a few lines: wall time, env steps/s (while training, the final
+    evaluation left out), final evaluation per robot."""
+    log.info(
+        "finished %s: %d env steps, wall time %.1f min, %.0f env steps/s",
+        run.path,
+        env_steps,
+        wall_s / 60,
+        env_steps / max(train_s, 1e-9),
+    )
+    for name, r in (results or {}).items():
+        log.info(
+            "final evaluation %s: %.1f ± %.1f (%d episodes)",
+            name,
+            r["mean"],
+            r["stderr"],
+            r["episodes"],
+        )
 
 
 def resume_checkpoint(run: RunDir, algo: Algorithm, device: str) -> int:
@@ -285,11 +330,21 @@ class Cadence:
         return row
 
 
-def finish(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int) -> None:
-    """The final evaluation, and the logger's run closed."""
-    _evaluate(recipe, run, algo, logger, env_steps)
+def finish(
+    recipe: Recipe,
+    run: RunDir,
+    algo: Algorithm,
+    logger,
+    env_steps: int,
+    *,
+    evaluate_now: bool = True,
+) -> dict | None:
+    """The final evaluation (unless not ``evaluate_now``), and the logger's run closed; returns
+    the evaluation's results per robot (None when none ran)."""
+    results = _evaluate(recipe, run, algo, logger, env_steps) if evaluate_now else None
     if logger is not None and hasattr(getattr(logger, "experiment", None), "finish"):
         logger.experiment.finish()
+    return results
 
 
 def _next_multiple(x: int, every: int) -> int:
@@ -387,10 +442,16 @@ def _eval_specs(recipe: Recipe) -> list[str]:
     return recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
 
 
-def _evaluate(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int) -> None:
+def _eval_path(run: RunDir, env_steps: int) -> Path:
+    return run.path / "eval" / f"step{env_steps}.json"
+
+
+def _evaluate(
+    recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int
+) -> dict[str, dict] | None:
     specs = _eval_specs(recipe)
     if recipe.eval.episodes <= 0 or not specs:
-        return
+        return None
     policy = algo.policy_state()
     results = evaluate(
         recipe,
@@ -400,7 +461,7 @@ def _evaluate(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: i
         deterministic=recipe.eval.deterministic,
     )
     path = write_eval(
-        run.path / "eval" / f"step{env_steps}.json",
+        _eval_path(run, env_steps),
         results,
         env_steps,
         meta={
@@ -416,3 +477,4 @@ def _evaluate(recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: i
     if recipe.eval.video:
         out = render_policy(recipe, policy, run.path / "videos" / f"step{env_steps}.mp4")
         log.info("video written to %s", out)
+    return results

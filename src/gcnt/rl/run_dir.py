@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import random
 from pathlib import Path
@@ -100,12 +101,14 @@ class RunDir:
     # --- metrics
     def log_metrics(self, row: dict[str, Any]) -> None:
         with self.metrics_path.open("a") as f:
-            f.write(json.dumps(row, sort_keys=True) + "\n")
+            f.write(metrics_line(row))
 
     def read_metrics(self) -> list[dict[str, Any]]:
+        """The logged rows; ``null`` (a non-finite value) reads back as NaN."""
         if not self.metrics_path.exists():
             return []
-        return [json.loads(line) for line in self.metrics_path.read_text().splitlines() if line]
+        lines = self.metrics_path.read_text().splitlines()
+        return [read_metrics_row(json.loads(line)) for line in lines if line]
 
     def set_aside_metrics(self) -> Path | None:
         """Rename the metrics of a run restarted from scratch (killed before its first
@@ -122,7 +125,7 @@ class RunDir:
         """Drop lines logged after the checkpoint a resumed run starts from."""
         rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
         tmp = self.metrics_path.with_suffix(".tmp")
-        tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+        tmp.write_text("".join(metrics_line(r) for r in rows))
         os.replace(tmp, self.metrics_path)
 
     # --- checkpoints
@@ -152,6 +155,30 @@ class RunDir:
         if not isinstance(state, dict) or "env_steps" not in state:
             raise CheckpointError(f"{self.checkpoint_path}: not a gcnt checkpoint")
         return state
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, ±inf) replaced by None, so that ``json.dumps``
+    writes ``null`` (strict JSON has no ``NaN``); dicts, lists and tuples are copied."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [strict_json(v) for v in value]
+    return value
+
+
+def metrics_line(row: dict[str, Any]) -> str:
+    """One ``metrics.jsonl`` line: strict JSON (non-finite values as ``null``), keys sorted."""
+    return json.dumps(strict_json(row), sort_keys=True, allow_nan=False) + "\n"
+
+
+def read_metrics_row(row: Any) -> Any:
+    """A metrics row as read from JSON, with ``null`` values back as NaN (what was logged)."""
+    if not isinstance(row, dict):
+        return row
+    return {k: math.nan if v is None else v for k, v in row.items()}
 
 
 def rng_state() -> dict[str, Any]:

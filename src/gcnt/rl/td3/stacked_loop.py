@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import copy
 import logging
+import time
 from pathlib import Path
 
-from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt.recipes import Recipe, RecipeError
@@ -31,8 +31,10 @@ from gcnt.rl.loop import (
     TrainStats,
     after_update,
     finish,
+    log_summary,
     make_collector,
     prepare,
+    progress_bar,
 )
 from gcnt.rl.run_dir import RunDir, make_logger
 from gcnt.rl.td3.stacked import SeedRNG, StackedTD3
@@ -122,14 +124,14 @@ def _lockstep(
     loggers = [make_logger(r, run, concurrent=True) for r, run in zip(recipes, runs, strict=True)]
     stats = [TrainStats([robot.name for robot in p.robots], 0, p.algo.updates) for p in prepared]
     collectors = []
+    t0 = time.perf_counter()
     try:
         for i, (recipe, p) in enumerate(zip(recipes, prepared, strict=True)):
             with rng.active(i):
                 settings = p.algo.collect_settings(0)
                 collectors.append(make_collector(recipe, p.env, settings))
         batches = [iter(c) for c in collectors]
-        progress = recipes[0].logger.progress
-        bar = tqdm(total=total * n, unit="step", disable=not progress)
+        bar = progress_bar(recipes[0], total * n, 0)
         with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
             try:
                 while min(env_steps) < total:
@@ -140,7 +142,6 @@ def _lockstep(
                     for i, data in enumerate(datas):
                         env_steps[i] += data.numel()
                         stats[i].add_episodes(data)
-                        bar.update(data.numel())
                     rows = stacked.process(datas, env_steps)
                     for i in range(n):
                         with rng.active(i):  # its checkpoint keeps its own random state
@@ -148,11 +149,15 @@ def _lockstep(
                                 recipes[i], runs[i], algos[i], loggers[i], stats[i],
                                 cadences[i], rows[i], env_steps[i],
                             )  # fmt: skip
+                    # 100% once the last batch's update is done
+                    bar.update(sum(d.numel() for d in datas))
             finally:
                 bar.close()
     finally:
         for c in collectors:
             c.shutdown()
+    train_s = time.perf_counter() - t0
     for i in range(n):
         with rng.active(i):
-            finish(recipes[i], runs[i], algos[i], loggers[i], env_steps[i])
+            results = finish(recipes[i], runs[i], algos[i], loggers[i], env_steps[i])
+        log_summary(runs[i], env_steps[i], train_s, time.perf_counter() - t0, results)

@@ -1,0 +1,139 @@
+"""``gcnt curves``: rows at the logged env steps (a common grid only where seeds log at different
+steps), the training evaluations' return as a curve (``--metric eval``), the end of the random
+phase from the recipe, per-robot runs averaged per seed, and ``null`` in metrics read as missing.
+
+Run directories are written as runs write them: ``recipe.yaml`` (with ``resolved:``),
+``metrics.jsonl`` through ``RunDir.log_metrics`` and ``eval/step<N>.json`` through
+``write_eval``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gcnt.analysis import curves
+from gcnt.analysis.runs import find_runs
+from gcnt.cli import main
+from gcnt.rl.evaluate import summarize, write_eval
+from gcnt.rl.run_dir import RunDir
+
+TRAIN = ["walker_2_main", "walker_4_main"]
+TEST = ["walker_3_main"]
+
+
+def make_run(
+    root: Path,
+    method: str,
+    seed: int,
+    steps: list[int],
+    value,
+    *,
+    robots: list[str] | None = None,
+    random_frames: int = 600,
+    deterministic: bool = True,
+) -> Path:
+    """A run logging ``value(step)`` as its training return and evaluating at every step."""
+    robots = robots or TRAIN
+    path = root / method / "_".join(robots) / f"seed{seed}"
+    path.mkdir(parents=True)
+    recipe = {
+        "task": "Walker++",
+        "algo": "td3",
+        "seed": seed,
+        "env": {"benchmark": "smpenv", "robots": robots, "test_robots": TEST},
+        "collector": {"total_frames": steps[-1]},
+        "network": {"name": method},
+        "td3": {"init_random_frames": 500},
+        "eval": {"deterministic": deterministic},
+        "resolved": {"init_random_frames": random_frames},
+    }
+    (path / "recipe.yaml").write_text(yaml.safe_dump(recipe))
+    run = RunDir(path)
+    for s in steps:
+        run.log_metrics({"env_steps": s, "train_return/mean": value(s), "loss_actor": math.nan})
+        results = {r: summarize([10 * value(s)] * 2) for r in robots}
+        results[TEST[0]] = summarize([-1000.0] * 2)  # a test robot: not in the curve
+        meta = {"robots_spec": robots + TEST, "episodes": 2, "deterministic": deterministic}
+        write_eval(path / "eval" / f"step{s}.json", results, s, meta)
+    return path
+
+
+def read_csv(path: Path) -> list[dict]:
+    return list(csv.DictReader(path.open()))
+
+
+def test_rows_are_the_logged_steps(tmp_path: Path) -> None:
+    for seed in (0, 1):
+        make_run(tmp_path, "gcnt", seed, [600, 1200, 1800, 2400], lambda s, k=seed: s / 100 + k)
+    rows = curves.learning_curves(find_runs([tmp_path]))
+    assert [r["env_steps"] for r in rows] == [600, 1200, 1800, 2400]
+    assert all(r["logged"] == 2 and r["seeds"] == 2 for r in rows)
+    assert rows[-1]["mean"] == pytest.approx(24.5) and rows[-1]["stderr"] == pytest.approx(0.5)
+
+
+def test_seeds_logging_at_different_steps_meet_on_the_union_of_their_steps(
+    tmp_path: Path,
+) -> None:
+    make_run(tmp_path, "gcnt", 0, [500, 1000, 2000, 3000], lambda s: s / 100)
+    make_run(tmp_path, "gcnt", 1, [800, 1600, 2400], lambda s: s / 100 + 1)
+    rows = curves.learning_curves(find_runs([tmp_path]))
+    # from the later first step (800) to the earlier last one (2400)
+    assert [(r["env_steps"], r["logged"]) for r in rows] == [
+        (800, 1),
+        (1000, 1),
+        (1600, 1),
+        (2000, 1),
+        (2400, 1),
+    ]
+    # both are linear: the mean is exact at every row
+    assert [r["mean"] for r in rows] == pytest.approx([r["env_steps"] / 100 + 0.5 for r in rows])
+
+
+def test_eval_metric_is_the_training_robots_evaluation_return(tmp_path: Path) -> None:
+    for seed in (0, 1):
+        make_run(tmp_path, "gcnt", seed, [600, 1200], lambda s, k=seed: s / 100 + k)
+    runs = find_runs([tmp_path])
+    rows = curves.learning_curves(runs, "eval")
+    # 10 x the training return on the training robots; the test robot (-1000) left out
+    assert [(r["env_steps"], r["mean"]) for r in rows] == [(600, 65.0), (1200, 125.0)]
+    one = curves.learning_curves(runs, f"eval/{TEST[0]}")
+    assert one[0]["mean"] == -1000.0
+    label = curves.metric_label(runs, "eval")
+    assert "evaluation return" in label and "deterministic actions, 2 episodes" in label
+    assert curves.metric_label(runs, "train_return/mean").startswith("training return")
+    # the run's own random phase (resolved, rounded to whole batches), not td3's setting
+    assert curves.random_phase(runs) == {"Walker++": [600]}
+
+
+def test_per_robot_runs_are_averaged_per_seed(tmp_path: Path) -> None:
+    """Two seeds x two single-robot runs: each seed is the mean over its robots first."""
+    for seed in (0, 1):
+        for k, robot in enumerate(TRAIN):
+            make_run(tmp_path, "sr", seed, [600, 1200], lambda s, a=seed + 2 * k: a, robots=[robot])
+    rows = curves.learning_curves(find_runs([tmp_path]))
+    # seed 0: mean(0, 2) = 1; seed 1: mean(1, 3) = 2; over seeds 1.5 ± 0.5
+    assert [(r["seeds"], r["robots"], r["logged"]) for r in rows] == [(2, 2, 2)] * 2
+    assert rows[0]["mean"] == pytest.approx(1.5) and rows[0]["stderr"] == pytest.approx(0.5)
+
+
+def test_curves_command_eval_metric_and_null_metrics(tmp_path: Path, capsys) -> None:
+    for seed in (0, 1):
+        make_run(tmp_path, "gcnt", seed, [600, 1200, 1800], lambda s: s / 100)
+    # loss_actor was NaN at every step: logged as null, read as missing
+    line = (tmp_path / "gcnt" / "_".join(TRAIN) / "seed0" / "metrics.jsonl").read_text()
+    assert '"loss_actor": null' in line and "NaN" not in line
+    assert main(["curves", str(tmp_path), "--metric", "loss_actor"]) == 2
+    assert main(["curves", str(tmp_path), "--metric", "eval"]) == 0
+    assert "evaluation return" in capsys.readouterr().out
+    rows = read_csv(tmp_path / "figures" / "curves.csv")
+    assert [r["env_steps"] for r in rows] == ["600", "1200", "1800"]
+    assert (tmp_path / "figures" / "curves.png").read_bytes()[:4] == b"\x89PNG"
+    # an even grid only when asked for
+    assert main(["curves", str(tmp_path), "--points", "5"]) == 0
+    assert len(read_csv(tmp_path / "figures" / "curves.csv")) == 5
+    assert main(["curves", str(tmp_path), "--points", "1"]) == 2
