@@ -209,17 +209,20 @@ def test_the_bar_ends_after_the_last_update_and_a_summary_follows(
 
 #: methods a quick start refuses (one line): SMP and the MLPs have no d_model (and the MLPs train
 #: one robot a run); ModuMorph and GCNT+HN read the static limb context UNIMAL robots carry
+#: sr/mlp: one MLP per robot (the quick starts train several); modumorph/gcnt_hn: their
+#: hypernetworks read the UNIMAL limb context, which SMPENV robots do not have
 REFUSED = {
-    "smpenv": {"smp", "sr", "mlp", "modumorph", "gcnt_hn"},
-    "unimal": {"smp", "sr", "mlp"},
+    "smpenv": {"sr", "mlp", "modumorph", "gcnt_hn"},
+    "unimal": {"sr", "mlp"},
 }
 
 
 @pytest.mark.parametrize("quickstart", QUICKSTARTS, ids=list(REFUSED))
 def test_every_method_builds_with_the_quick_start_sizes(quickstart, request):
     """The quick starts shrink d_model: widths derived from it (ModuMorph's context and
-    hypernetwork widths, SWAT's traversal widths) follow, so every method that can run on the
-    benchmark builds its actor and critic; the others are refused in one line (a RecipeError)."""
+    hypernetwork widths, SWAT's traversal widths) follow, SMP takes its own sizes from
+    ``network.method_kwargs``, so every method that can run on the benchmark builds its actor and
+    critic; the others are refused in one line (a RecipeError)."""
     from gcnt.nn.registry import NETWORKS
     from gcnt.recipes import RecipeError, load_recipe
     from gcnt.rl.factories import make_env, make_net, train_robots

@@ -62,6 +62,14 @@ class NetworkConfig:
     preset: str | None = None
     #: keyword overrides of the preset (e.g. d_model: 64); validated by the network builder
     kwargs: dict[str, Any] = field(default_factory=dict)
+    #: per-method overrides that replace ``kwargs`` when that method is chosen (e.g.
+    #: ``{smp: {msg_dim: 16}}`` in a recipe whose ``kwargs`` shrink the Transformers), so that a
+    #: shrunk recipe runs every method: ``network.name=smp`` then uses these
+    method_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def sizes(self) -> dict[str, Any]:
+        """The overrides of the chosen method: ``method_kwargs[name]`` if set, else ``kwargs``."""
+        return dict(self.method_kwargs.get(self.name, self.kwargs))
 
 
 @dataclass

@@ -126,7 +126,7 @@ def make_net(recipe: Recipe, env: EnvBase, role: str, **extra: Any) -> TensorDic
         num_actions=widths["num_actions"],
         preset=net.preset or benchmark_of(recipe).preset,
         **extra,
-        **net.kwargs,
+        **net.sizes(),
     ).to(recipe.device)
 
 

@@ -52,12 +52,13 @@ class TrainingDivergedError(FloatingPointError):
 
 
 def check_network(recipe: Recipe) -> None:
-    """The recipe's network name, preset and ``network.kwargs``: a RecipeError naming them."""
+    """The recipe's network name, preset and sizes (``network.kwargs``, or the method's entry of
+    ``network.method_kwargs``): a RecipeError naming them."""
     from gcnt.nn.registry import make_config
 
     net = recipe.network
     try:
-        make_config(net.name, net.preset or benchmark_of(recipe).preset, **net.kwargs)
+        make_config(net.name, net.preset or benchmark_of(recipe).preset, **net.sizes())
     except (ValueError, TypeError) as e:
         raise RecipeError(f"network: {e}") from None
 
