@@ -96,7 +96,7 @@ def test_find_runs_reads_new_and_old_recipes(tmp_path: Path) -> None:
     assert runs[1].metrics()[-1]["env_steps"] == 20  # the torn line is skipped
     with pytest.raises(AnalysisError, match="no run directories"):
         find_runs([tmp_path / "Walkerpp" / "gcnt" / "seed0" / "checkpoints"])
-    with pytest.raises(AnalysisError, match="no such file"):
+    with pytest.raises(AnalysisError, match="nope does not exist"):
         find_runs([tmp_path / "nope"])
 
 

@@ -13,12 +13,10 @@ its positional words (recipe, ``key=value`` overrides) may come in any order.
 from __future__ import annotations
 
 import argparse
-import difflib
 import importlib
 import logging
 import os
 import sys
-from pathlib import Path
 
 from gcnt.suggest import did_you_mean
 
@@ -102,39 +100,6 @@ class IntermixedParser(argparse.ArgumentParser):
             return self.parse_known_intermixed_args(args, namespace)
         finally:
             self._inside = False
-
-
-def existing_run_dir(text: str) -> Path:
-    """``text`` as a path that exists; a FileNotFoundError with the closest existing paths
-    otherwise (runs are stored under a slug of the task: ``runs/Walker++/...`` is
-    ``runs/Walkerpp/...``)."""
-    path = Path(text)
-    if path.exists():
-        return path
-    hint = did_you_mean(text, _close_paths(path))
-    raise FileNotFoundError(f"run directory {text} does not exist{hint}")
-
-
-def _close_paths(path: Path, depth: int = 0) -> list[str]:
-    """Existing paths that differ from ``path`` in a few misspelt parts (up to 3)."""
-    parts = path.parts
-    i = next((i for i in range(len(parts)) if not Path(*parts[: i + 1]).exists()), len(parts))
-    if i == len(parts):
-        return [str(path)]
-    parent = Path(*parts[:i]) if i else Path(".")
-    if depth >= 3 or not parent.is_dir():
-        return []
-    try:
-        names = [p.name for p in parent.iterdir() if p.is_dir() or i == len(parts) - 1]
-    except OSError:  # a folder that cannot be listed
-        return []
-    # the task folder's name as RunDir.for_recipe spells it (runs/Walker++ -> runs/Walkerpp)
-    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in parts[i].replace("+", "p"))
-    close = ([slug] if slug in names else []) + difflib.get_close_matches(parts[i], names, 3, 0.5)
-    found: list[str] = []
-    for name in dict.fromkeys(close):
-        found += _close_paths(parent.joinpath(name, *parts[i + 1 :]), depth + 1)
-    return [str(Path(p)) for p in dict.fromkeys(found)][:3]
 
 
 def build_parser(only: str | None) -> argparse.ArgumentParser:

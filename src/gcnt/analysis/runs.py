@@ -22,6 +22,8 @@ from typing import Any
 
 import yaml
 
+from gcnt.suggest import existing_path
+
 RECIPE_FILE = "recipe.yaml"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINT = "checkpoints/last.pt"
@@ -359,7 +361,10 @@ def find_runs(paths: Iterable[str | Path]) -> list[Run]:
     paths = list(paths)
     for p in map(Path, paths):
         if not p.exists():
-            raise AnalysisError(f"{p}: no such file or directory")
+            try:
+                existing_path(str(p), "run or sweep directory")
+            except FileNotFoundError as e:
+                raise AnalysisError(str(e)) from None
         if (p / RECIPE_FILE).is_file():
             runs[p.resolve()] = Run(p)
             continue

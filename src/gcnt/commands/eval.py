@@ -15,7 +15,7 @@ import logging
 import re
 from pathlib import Path
 
-from gcnt.cli import existing_run_dir
+from gcnt.suggest import existing_path
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.rl.loop import check_network
     from gcnt.rl.run_dir import CheckpointError, RunDir
 
-    run_dir = RunDir(existing_run_dir(args.run_dir))
+    run_dir = RunDir(existing_path(args.run_dir))
     recipe = run_dir.load_recipe()
     deterministic = protocol(recipe, args.deterministic)
     episodes = args.episodes if args.episodes is not None else default_episodes(deterministic)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from gcnt.cli import existing_run_dir
+from gcnt.suggest import existing_path
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_seeds(args)
     if args.resume:
         overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
-        run_dir = RunDir(existing_run_dir(args.resume))
+        run_dir = RunDir(existing_path(args.resume))
         recipe = run_dir.load_recipe(overrides)
         resume = run_dir.has_checkpoint()
         if not resume:
