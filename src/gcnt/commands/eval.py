@@ -15,6 +15,7 @@ import logging
 import re
 from pathlib import Path
 
+from gcnt.commands.options import add_eval_protocol
 from gcnt.suggest import existing_path
 
 log = logging.getLogger(__name__)
@@ -36,23 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="episodes per robot (default: 100 deterministic, 32 stochastic)",
     )
     p.add_argument("--seed", type=int, default=10_000, help="evaluation seed")
-    mode = p.add_mutually_exclusive_group()
-    mode.add_argument(
-        "--deterministic",
-        dest="deterministic",
-        action="store_const",
-        const=True,
-        default=None,
-        help="the policy's mean action (default: the recipe's eval.deterministic)",
-    )
-    mode.add_argument(
-        "--stochastic",
-        dest="deterministic",
-        action="store_const",
-        const=False,
-        help="sample actions from the policy (ModuMorph's PPO protocol; default: the recipe's "
-        "eval.deterministic)",
-    )
+    add_eval_protocol(p, "deterministic")
     p.add_argument("--json", metavar="PATH", help="also write the results to PATH")
     p.add_argument(
         "--video",

@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from gcnt.commands.options import add_eval_protocol
+
 log = logging.getLogger(__name__)
 
 
@@ -87,21 +89,7 @@ def _options(p: argparse.ArgumentParser) -> None:
         help="episodes per robot for --eval (default: gcnt eval's, 100 deterministic or 32 "
         "sampled)",
     )
-    mode = p.add_mutually_exclusive_group()
-    mode.add_argument(
-        "--deterministic",
-        dest="eval_deterministic",
-        action="store_const",
-        const=True,
-        help="--eval with deterministic actions (default: each run's eval.deterministic)",
-    )
-    mode.add_argument(
-        "--stochastic",
-        dest="eval_deterministic",
-        action="store_const",
-        const=False,
-        help="--eval with sampled actions (default: each run's eval.deterministic)",
-    )
+    add_eval_protocol(p, "eval_deterministic", "--eval with ")
     p.add_argument("--status", action="store_true", help="print the manifest's states and exit")
     p.add_argument("--dry-run", action="store_true", help="write the manifest, print, run nothing")
     local = p.add_argument_group("local pool")
