@@ -18,6 +18,7 @@ environment variable ``GCNT_MORPHOLOGIES`` points.
 
 from __future__ import annotations
 
+import fnmatch
 import functools
 import importlib
 import os
@@ -103,6 +104,7 @@ _REGISTRY: dict[str, Catalogue] = {}
 _BUILTIN: dict[str, str] = {
     "smpenv": "gcnt.morphology.catalogues:SMPENV_CATALOGUE",
     "unimal": "gcnt.morphology.unimal.catalogue:UNIMAL_CATALOGUE",
+    "mjcf3d": "gcnt.morphology.mjcf3d:MJCF3D_CATALOGUE",
 }
 
 
@@ -159,6 +161,17 @@ def _name_index() -> dict[str, str]:
                 )
             index[name] = cat.name
     return index
+
+
+def _is_pattern(spec: str) -> bool:
+    return any(c in spec for c in "*?[") and ":" not in spec and os.sep not in spec
+
+
+def _matching_names(pattern: str) -> list[str]:
+    names = [n for n in _name_index() if fnmatch.fnmatchcase(n, pattern)]
+    if not names:
+        raise UnknownRobotError(f"no robot name matches the pattern {pattern!r}")
+    return names
 
 
 def robot_catalogue(name: str) -> str | None:
@@ -336,7 +349,9 @@ def resolve_robots(specs: Sequence[str]) -> list[Robot]:
     * a robot name of any catalogue, e.g. ``walker_3_main`` or ``unimal_0042``;
     * a path to an MJCF file, e.g. ``my_robots/walker_long.xml``, or a folder of them;
     * ``Benchmark:split``, e.g. ``CWHH++:train``, ``Walker++:test``, ``Unimal:variants-dynamics``
-      (split defaults to ``train``; ``all`` means train then test).
+      (split defaults to ``train``; ``all`` means train then test);
+    * a shell-style pattern over the catalogues' robot names (``*``, ``?``, ``[...]``), e.g.
+      ``unimal_000?-length*``: every matching robot in catalogue order (none matching is an error).
 
     A robot named twice (directly or through two specs) is an error: a robot list names each robot
     once, and ``env.copies`` runs more copies of every robot.
@@ -350,6 +365,8 @@ def resolve_robots(specs: Sequence[str]) -> list[Robot]:
         path = Path(spec)
         if robot_catalogue(spec) is not None:
             found = [load_named(spec)]
+        elif _is_pattern(spec) and not path.exists():
+            found = [load_named(n) for n in _matching_names(spec)]
         elif path.is_dir():
             found = _folder_robots(path)
         elif spec.endswith(".xml") or os.sep in spec or path.is_file():
