@@ -3,6 +3,7 @@
 gcnt robots                        benchmarks with their splits, the SMPENV robots, UNIMAL statistics
 gcnt robots CWHH++:test hopper_4   only these robots (names, .xml paths or folders, Benchmark:split)
 gcnt robots ~/unimals_100/train/xml   a folder of (MetaMorph) robot files
+gcnt robots path/to/ant.xml        any robot file: its family (read from its structure) and limbs
 gcnt robots --rebuild [--out D]    regenerate every catalogue's files (into D/<catalogue>/...)
 gcnt robots --check                exit 1 unless the checked-in files equal a regeneration
 gcnt robots --generate 20 --seed 500 --out D   20 new UNIMAL robots (seeds 500-519) into D
@@ -140,13 +141,14 @@ def _robot_rows(robots: list[Robot]) -> str:
             r.name,
             where.get(r.name, "-"),
             r.catalogue,
+            r.family,
             str(r.num_limbs),
             str(r.num_motors),
             " ".join(r.body_names),
         )
         for r in robots
     ]
-    header = ("robot", "benchmark", "catalogue", "limbs", "motors", "bodies (pre-order)")
+    header = ("robot", "benchmark", "catalogue", "family", "limbs", "motors", "limbs (pre-order)")
     return _table(rows, header)
 
 

@@ -45,7 +45,7 @@ from torchrl.envs import EnvBase
 from gcnt import keys as K
 from gcnt.envs.plugins import FeaturizerFactory, RulesFactory, TaskRules
 from gcnt.envs.robot_table import RobotTooLargeError, robot_table
-from gcnt.envs.stepper import ThreadedPhysics, cost_guess
+from gcnt.envs.stepper import ThreadedPhysics, cost_guess, physics_error
 from gcnt.morphology import GLOBAL_LIMB_TYPES, Robot
 
 log = logging.getLogger(__name__)
@@ -460,8 +460,11 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
         for i in rows:
             s = self._sims[i]
             mujoco.mj_resetData(s.model, s.data)  # qpos = qpos0: every joint at its ref
-            s.rules.reset(s.model, s.data, self._rng)
-            s.rules.begin(s.data)
+            try:
+                s.rules.reset(s.model, s.data, self._rng)
+                s.rules.begin(s.data)
+            except mujoco.FatalError as e:  # an arena too small for the robot: one line
+                raise physics_error(s.robot, s.model, e) from None
         self._elapsed[which] = 0
         self._blown[which] = False
         self._warned[which] = False

@@ -35,7 +35,8 @@ class Benchmark:
     catalogue: str
     #: builds the batched env (see :data:`EnvFactory`)
     make_env: EnvFactory
-    #: network size preset of this benchmark ("smpenv" or "unimal", see ``gcnt.nn.config``)
+    #: network size preset of this benchmark ("smpenv" or "unimal", see ``gcnt.nn.config``;
+    #: mjcf3d's 3-D robots use "unimal")
     preset: str
     #: per-limb observation width F and action slots per limb A (the env's specs say the same)
     limb_obs_dim: int = 0
@@ -71,6 +72,7 @@ _REGISTRY: dict[str, Benchmark] = {}
 _BUILTIN: dict[str, str] = {
     "smpenv": "gcnt.envs.smpenv:SMPENV_BENCHMARK",
     "unimal": "gcnt.envs.unimal:UNIMAL_BENCHMARK",
+    "mjcf3d": "gcnt.envs.mjcf3d:MJCF3D_BENCHMARK",
 }
 
 

@@ -93,6 +93,33 @@ class StepQueue:
             raise self._error
 
 
+def physics_error(robot, model: mujoco.MjModel, error: BaseException) -> BaseException:
+    """``error`` from MuJoCo while stepping or resetting ``robot``, as the error to report: a
+    ``mujoco.FatalError`` for an arena too small for the robot (``mj_stackAlloc``) becomes a
+    one-line RobotTooLargeError naming the robot and the fix (a larger ``<size memory=.../>``
+    in its file: MuJoCo sizes the arena from the model, and only the robot's file can say that a
+    robot needs more); anything else is returned as it is."""
+    from gcnt.envs.robot_table import RobotTooLargeError
+
+    text = str(error)
+    if not isinstance(error, mujoco.FatalError) or "mj_stackAlloc" not in text:
+        return error
+    return RobotTooLargeError(
+        f"robot {robot.name!r} ({robot.source}): MuJoCo's arena of {_size(model.narena)} bytes "
+        f"is too small for its {model.nbody} bodies ({text.splitlines()[0]}); give the robot "
+        f'file a larger <size memory="{_size(2 * model.narena)}"/> (or simplify the robot)'
+    )
+
+
+def _size(n: int) -> str:
+    """``n`` bytes as MuJoCo's ``memory`` attribute writes sizes (``512K``, ``866M``), rounded
+    up."""
+    for unit, scale in (("G", 1 << 30), ("M", 1 << 20), ("K", 1 << 10)):
+        if n >= scale:
+            return f"{-(-int(n) // scale)}{unit}"
+    return str(int(n))
+
+
 _openmp_warned = False
 
 
@@ -180,8 +207,10 @@ class ThreadedPhysics:
                 reward[i], term[i] = s.rules.step(d, sq[i])
                 finish()
         except BaseException as e:
+            if isinstance(e, mujoco.FatalError):
+                e = physics_error(s.robot, s.model, e)
             queue.fail(e)
-            raise
+            raise e from None
 
     def _threads_now(self) -> int:
         """How many threads step the physics this time (see ``num_threads`` in the class doc).

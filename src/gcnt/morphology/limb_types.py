@@ -53,8 +53,12 @@ MAX_JOINTS_PER_LIMB: dict[str, int] = {
     "hopper": 1,
     "humanoid": 1,
     "unimal": 2,
+    # general 3-D robots: any free-floating tree of bodies, up to three hinges per limb
+    "mjcf3d": 3,
 }
 FAMILIES: tuple[str, ...] = tuple(MAX_JOINTS_PER_LIMB)
+#: Families of 2-D robots on a planar root (slide x, slide z, hinge y).
+PLANAR_FAMILIES: tuple[str, ...] = ("walker", "cheetah", "hopper", "humanoid")
 
 # (regex on the body name, global type, family-level slot); first match wins.
 _RULES: dict[str, tuple[tuple[str, str, int], ...]] = {

@@ -4,10 +4,27 @@ Read from MJCF through MuJoCo's own compiler, so that what the policy sees is wh
 steps. Every malformed file raises :class:`RobotFileError` naming the file and the culprit.
 
 One loader serves every family. What differs per family is said in one place each: the most
-hinges per limb and bodies per robot (``limb_types``), the root joint (UNIMAL: one free joint),
-the limb types (SMPENV: from body names; UNIMAL: from the tree) and the action slot of each joint
-(SMPENV: joint order; UNIMAL: slot 0 = the hinge about the limb's x axis, slot 1 = about its y
-axis, decided from the joint axis as written in the file, seen in the frame of the limb's capsule).
+hinges per limb and bodies per robot (``limb_types``), the root joint (UNIMAL and general 3-D
+robots: one free joint), the limb types (SMPENV: from body names; UNIMAL and 3-D: from the tree)
+and the action slot of each joint (SMPENV and 3-D: joint order; UNIMAL: slot 0 = the hinge about
+the limb's x axis, slot 1 = about its y axis, decided from the joint axis as written in the file,
+seen in the frame of the limb's capsule).
+
+The family is read from the structure (:func:`_family_of`): a root body on a planar root (slide
+x, slide z, hinge y, any order) is a 2-D robot, whose family (walker, cheetah, hopper or humanoid:
+SMPENV's task rules) is hinted by the model name or file name and is ``cheetah`` when neither
+names one (the family whose rules assume nothing of the robot's posture: no termination); a root
+body on one free joint is a 3-D robot: ``unimal`` for UNIMAL files (a ``torso/0`` body or a model
+name starting with ``unimal``), else ``mjcf3d``, the general 3-D family. A
+``<custom><text name="gcnt_family" data=...>`` entry names the family outright.
+
+A ``mjcf3d`` limb is a body with hinge joints (up to three); a body without joints is welded to
+its parent and belongs to its parent's limb (a head on a torso, a hand on a forearm).
+
+Refused, in one line naming the element, for every family: an actuator on a tendon (dm_control's
+quadruped drives each leg through fixed tendons; gcnt's policies output one torque per hinge, and
+a tendon moves several hinges at once), equality constraints (closed loops), joints other than
+hinges on limbs (ball, slide), servos.
 """
 
 from __future__ import annotations
@@ -25,6 +42,7 @@ from gcnt.morphology.limb_types import (
     FAMILIES,
     MAX_JOINTS_PER_LIMB,
     MAX_LIMBS,
+    PLANAR_FAMILIES,
     UnknownLimbError,
     limb_type,
     unimal_limb_types,
@@ -37,7 +55,15 @@ UNIMAL_TORSO = "torso/0"
 #: Families whose limbs carry up to two hinges put in action slots by axis (x -> 0, y -> 1).
 _SLOT_BY_AXIS = frozenset({"unimal"})
 #: Families whose root must be one free joint.
-_FREE_ROOT = frozenset({"unimal"})
+_FREE_ROOT = frozenset({"unimal", "mjcf3d"})
+#: Families whose limbs are typed by their place in the tree (proximal, inner, distal).
+_TREE_TYPES = frozenset({"unimal", "mjcf3d"})
+#: Families in which a body without joints is welded to its parent's limb.
+_WELDED_BODIES = frozenset({"mjcf3d"})
+#: The catalogue of a robot file loaded by path, by family (others: "smpenv").
+_CATALOGUE_OF_FAMILY = {"unimal": "unimal", "mjcf3d": "mjcf3d"}
+#: A planar robot whose names hint at no family gets this one (its rules never terminate).
+PLANAR_FALLBACK = "cheetah"
 
 
 class RobotFileError(ValueError):
@@ -98,33 +124,70 @@ class Robot:
         return f"Robot({self.name!r}, family={self.family!r}, limbs={self.num_limbs})"
 
 
-def _family_of(model: mujoco.MjModel, root: ET.Element, source: str) -> str:
+def _root_kind(model: mujoco.MjModel, body: int) -> str | None:
+    """The root body's joints: "free" (one free joint), "planar" (slide x, slide z and hinge y,
+    in any order) or None (anything else)."""
+    start, num = int(model.body_jntadr[body]), int(model.body_jntnum[body])
+    types = [int(model.jnt_type[j]) for j in range(start, start + num)]
+    if types == [mujoco.mjtJoint.mjJNT_FREE]:
+        return "free"
+    found = set()
+    for j in range(start, start + num):
+        axis = tuple(np.round(np.abs(model.jnt_axis[j]), 6))
+        if types[j - start] == mujoco.mjtJoint.mjJNT_SLIDE and axis in ((1, 0, 0), (0, 0, 1)):
+            found.add(("slide", axis))
+        elif types[j - start] == mujoco.mjtJoint.mjJNT_HINGE and axis == (0, 1, 0):
+            found.add(("hinge", axis))
+    return "planar" if num == 3 and len(found) == 3 else None
+
+
+def _family_of(
+    model: mujoco.MjModel, root: ET.Element, source: str, body: int, family: str | None
+) -> str:
+    """The robot family: ``family`` or the file's family tag if given, else from the structure
+    of the root body ``body`` with the names as hints (see the module doc)."""
     for el in root.iter("text"):
-        if el.get("name") == FAMILY_TEXT:
-            fam = el.get("data", "")
-            if fam not in FAMILIES:
-                raise RobotFileError(
-                    f"{source}: unknown robot family {fam!r}; known: {', '.join(FAMILIES)}"
-                )
-            return fam
+        if family is None and el.get("name") == FAMILY_TEXT:
+            family = el.get("data", "")
+    if family is not None:
+        if family not in FAMILIES:
+            raise RobotFileError(
+                f"{source}: unknown robot family {family!r}; known: {', '.join(FAMILIES)}"
+            )
+        return family
     name = root.get("model", "") or Path(source).stem
     if any(el.get("name") == UNIMAL_TORSO for el in root.iter("body")):
         return "unimal"
+    kind = _root_kind(model, body)
+    if kind == "free":
+        return "unimal" if name.startswith("unimal") else "mjcf3d"
+    if kind == "planar":
+        hints = f"{name} {Path(source).stem}".lower()
+        return next((fam for fam in PLANAR_FAMILIES if fam in hints), PLANAR_FALLBACK)
     for fam in FAMILIES:
         if name.startswith(fam):
             return fam
+    start, num = int(model.body_jntadr[body]), int(model.body_jntnum[body])
+    joints = [model.joint(j).name or f"#{j}" for j in range(start, start + num)]
     raise RobotFileError(
-        f"{source}: cannot tell the robot family of model {name!r}; start the model name with "
-        f'one of {", ".join(FAMILIES)} or add <custom><text name="{FAMILY_TEXT}" data=...>'
+        f"{source}: cannot tell the robot family of model {name!r}: its root body "
+        f"{model.body(body).name!r} has joints {joints}, neither one free joint (a 3-D robot) nor "
+        f"slide x, slide z and hinge y (a 2-D robot); start the model name with one of "
+        f'{", ".join(FAMILIES)} or add <custom><text name="{FAMILY_TEXT}" data=...>'
     )
 
 
-def load_robot(path: str | Path, catalogue: str | None = None) -> Robot:
-    """Read a robot from an MJCF file (``catalogue``: see :func:`robot_from_xml`)."""
+def load_robot(path: str | Path, catalogue: str | None = None, family: str | None = None) -> Robot:
+    """Read a robot from an MJCF file (``catalogue``, ``family``: see :func:`robot_from_xml`)."""
     path = Path(path)
     text = _read_text(path, str(path))
     return robot_from_xml(
-        text, source=str(path), name=path.stem, catalogue=catalogue, folder=path.parent
+        text,
+        source=str(path),
+        name=path.stem,
+        catalogue=catalogue,
+        folder=path.parent,
+        family=family,
     )
 
 
@@ -269,6 +332,21 @@ def _check_motors(root: ET.Element, source: str) -> None:
     actuator = root.find("actuator")
     for el in actuator if actuator is not None else ():
         target = el.get("joint")
+        if el.get("tendon") is not None:
+            # a tendon moves several hinges at once; one action per hinge cannot express it
+            tendon = el.get("tendon")
+            coupled = [
+                j.get("joint")
+                for t in root.iter()
+                if t.tag in ("fixed", "spatial") and t.get("name") == tendon
+                for j in t.iter("joint")
+            ]
+            couples = f" (it couples joints {', '.join(coupled)})" if coupled else ""
+            raise RobotFileError(
+                f"{source}: {el.tag} {el.get('name', '(unnamed)')!r} drives tendon {tendon!r}"
+                f"{couples}; gcnt's policies output one torque per hinge: give each hinge its "
+                "own motor"
+            )
         if target is None:
             raise RobotFileError(
                 f"{source}: {el.tag} {el.get('name', '(unnamed)')!r} has no joint; every motor "
@@ -290,6 +368,16 @@ def _check_root(model: mujoco.MjModel, body: int, family: str, source: str) -> N
         raise RobotFileError(
             f"{source}: root body {model.body(body).name!r} has no free root joint (found "
             f"{num} joint(s) of other types); a {family} robot's torso moves freely"
+        )
+
+
+def _check_tree(model: mujoco.MjModel, source: str) -> None:
+    """Equality constraints close loops (or tie joints together): a limb tree cannot say so."""
+    if model.neq:
+        kind = mujoco.mjtEq(int(model.eq_type[0])).name.removeprefix("mjEQ_").lower()
+        raise RobotFileError(
+            f"{source}: equality constraint {model.eq(0).name or '#0'!r} ({kind}) closes a loop "
+            "or couples joints; gcnt reads trees of bodies without constraints"
         )
 
 
@@ -327,11 +415,13 @@ def robot_from_xml(
     name: str | None = None,
     catalogue: str | None = None,
     folder: Path | None = None,
+    family: str | None = None,
 ) -> Robot:
     """Read a robot from MJCF text. ``name`` defaults to the model attribute; ``catalogue`` to
-    the catalogue of the robot's family ("unimal" for UNIMAL robots, else "smpenv"); ``folder``
-    is the robot file's folder, against which ``<include>`` and asset files resolve (files
-    outside it are refused)."""
+    the catalogue of the robot's family ("unimal" for UNIMAL robots, "mjcf3d" for other 3-D
+    robots, else "smpenv"); ``folder`` is the robot file's folder, against which ``<include>``
+    and asset files resolve (files outside it are refused); ``family`` reads the file as that
+    family whatever its structure and names say (e.g. a UNIMAL file as a general 3-D robot)."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
@@ -346,15 +436,15 @@ def robot_from_xml(
         raise RobotFileError(f"{source}: MuJoCo cannot compile it: {detail}") from None
     _check_finite(model, source)
     name = name or root.get("model") or "robot"
-    family = _family_of(model, root, source)
-
     roots = [b for b in range(1, model.nbody) if model.body_parentid[b] == 0]
     if len(roots) != 1:
         names = [model.body(b).name for b in roots]
         raise RobotFileError(
             f"{source}: expected exactly one root body under worldbody, found {len(roots)}: {names}"
         )
+    family = _family_of(model, root, source, roots[0], family)
     _check_root(model, roots[0], family, source)
+    _check_tree(model, source)
     # Depth-first pre-order from the root; children in file order.
     kids: dict[int, list[int]] = {}
     for b in range(1, model.nbody):
@@ -365,17 +455,25 @@ def robot_from_xml(
         b = stack.pop()
         order.append(b)
         stack.extend(reversed(kids.get(b, [])))
+    if family in _WELDED_BODIES:
+        # a body without joints is welded to its parent: its parent's limb
+        limb_of = {order[0]: order[0]}
+        for b in order[1:]:
+            welded = int(model.body_jntnum[b]) == 0
+            limb_of[b] = limb_of[int(model.body_parentid[b])] if welded else b
+        order = [b for b in order if limb_of[b] == b]
+        parent_of = {b: limb_of[int(model.body_parentid[b])] for b in order[1:]}
+    else:
+        parent_of = {b: int(model.body_parentid[b]) for b in order[1:]}
     index = {b: i for i, b in enumerate(order)}
-    parents = np.array(
-        [-1] + [index[int(model.body_parentid[b])] for b in order[1:]], dtype=np.int64
-    )
+    parents = np.array([-1] + [index[parent_of[b]] for b in order[1:]], dtype=np.int64)
     max_limbs = MAX_LIMBS.get(family)
     if max_limbs is not None and len(order) > max_limbs:
         raise RobotFileError(
             f"{source}: {len(order)} bodies (torso included); a {family} robot may have at most "
             f"{max_limbs}"
         )
-    by_tree = unimal_limb_types(parents.tolist()) if family == "unimal" else None
+    by_tree = unimal_limb_types(parents.tolist()) if family in _TREE_TYPES else None
     depth = [0] * len(order)  # segment position along the chain from the torso
     for i in range(1, len(order)):
         depth[i] = depth[int(parents[i])] + 1
@@ -390,7 +488,7 @@ def robot_from_xml(
     body_names, jnames, jids, aids, ranges, gtypes, slots = [], [], [], [], [], [], []
     action_slots: list[tuple[int, ...]] = []
     for i, b in enumerate(order):
-        bname = model.body(b).name
+        bname = model.body(b).name or f"body#{b}"
         body_names.append(bname)
         start, num = int(model.body_jntadr[b]), int(model.body_jntnum[b])
         hinges = [
@@ -401,9 +499,12 @@ def robot_from_xml(
         else:
             other = [j for j in range(start, start + num) if j not in hinges]
             if other:
+                kind = mujoco.mjtJoint(int(model.jnt_type[other[0]])).name
+                kind = kind.removeprefix("mjJNT_").lower()
                 raise RobotFileError(
-                    f"{source}: limb {bname!r} has joint {model.joint(other[0]).name!r} that is "
-                    "not a hinge; limbs move only about hinges"
+                    f"{source}: limb {bname!r} has {kind} joint "
+                    f"{model.joint(other[0]).name or f'#{other[0]}'!r} that is not a hinge; limbs "
+                    "move only about hinges"
                 )
             if not hinges:
                 raise RobotFileError(f"{source}: limb {bname!r} has no hinge joint")
@@ -415,7 +516,8 @@ def robot_from_xml(
             for j in hinges:
                 if j not in motor_of:
                     raise RobotFileError(
-                        f"{source}: joint {model.joint(j).name!r} of limb {bname!r} has no motor"
+                        f"{source}: joint {model.joint(j).name or f'#{j}'!r} of limb {bname!r} "
+                        "has no motor"
                     )
         jnames.append(tuple(model.joint(j).name for j in hinges))
         jids.append(tuple(hinges))
@@ -460,5 +562,5 @@ def robot_from_xml(
         global_types=np.array(gtypes, dtype=np.int64),
         family_slots=np.array(slots, dtype=np.int64),
         joint_slots=tuple(action_slots),
-        catalogue=catalogue or ("unimal" if family == "unimal" else "smpenv"),
+        catalogue=catalogue or _CATALOGUE_OF_FAMILY.get(family, "smpenv"),
     )
