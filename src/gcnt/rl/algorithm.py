@@ -118,6 +118,12 @@ class Algorithm(ABC):
     def load_buffers(self, directory) -> None:  # noqa: B027 (optional hook, no-op by default)
         """Read what :meth:`buffers_state` wrote (nothing to read by default)."""
 
+    def start_from(self, state: dict[str, Any]) -> None:
+        """Fine-tuning (``init_from``): take over the learnt networks, and whatever the policy
+        reads with them (observation statistics), from another run's :meth:`state_dict`;
+        optimisers, buffers and counters stay as built. A ValueError names what does not fit."""
+        raise RecipeError(f"init_from: algorithm {self.name!r} cannot start from a trained run")
+
     # ------------------------------------------------------------------ evaluation
     @abstractmethod
     def policy_state(self) -> dict[str, Any]:

@@ -137,6 +137,14 @@ def network_weights(module: torch.nn.Module) -> dict:
 
 def load_weights(module: torch.nn.Module, weights: dict) -> None:
     """Load network weights (the robot table is rebuilt, not loaded); a mismatch names itself."""
+    # torch names every mis-shaped tensor over several lines; the first one, in one line
+    own = module.state_dict()
+    for key, value in weights.items():
+        if key in own and tuple(own[key].shape) != tuple(value.shape):
+            raise ValueError(
+                f"the checkpoint does not fit the recipe's network: {key} is "
+                f"{list(value.shape)} in the checkpoint, {list(own[key].shape)} in the network"
+            )
     try:
         missing, unexpected = module.load_state_dict(weights, strict=False)
     except RuntimeError as e:

@@ -279,9 +279,37 @@ class PPOLearner:
             "updates": self.updates,
         }
 
+    def load_networks(self, state: dict) -> None:
+        """The actor's and critic's weights from a :meth:`state_dict` (optimiser, statistics
+        and counters left as they are); a ValueError names the network that does not fit."""
+        for key in ("actor", "critic"):
+            try:
+                load_weights(getattr(self, key), state[key])
+            except ValueError as e:
+                raise ValueError(f"PPO {key}: {e}") from None
+
+    def start_obs_norm(self, state: dict | None) -> None:
+        """Another run's observation statistics (:meth:`ObsNormalizer.state_dict`), counts
+        included, fitted to this run's limb slots (``ObsNormalizer.for_limbs``)."""
+        if (state is None) != (self.obs_norm is None):
+            raise ValueError(
+                f"that run has ppo.obs_norm={state is not None}, this recipe has "
+                f"ppo.obs_norm={self.obs_norm is not None}"
+            )
+        if state is None:
+            return
+        k, f = state["mean"].shape
+        if f != self.obs_norm.mean.shape[1]:
+            raise ValueError(
+                f"observation statistics of {f} features per limb in that run, "
+                f"{self.obs_norm.mean.shape[1]} in this run's observations"
+            )
+        trained = ObsNormalizer(k, f)
+        trained.load_state_dict(state)
+        self.obs_norm.load_state_dict(trained.for_limbs(self.obs_norm.mean.shape[0]).state_dict())
+
     def load_state_dict(self, state: dict) -> None:
-        load_weights(self.actor, state["actor"])
-        load_weights(self.critic, state["critic"])
+        self.load_networks(state)
         self.opt.load_state_dict(state["opt"])
         if self.obs_norm is not None and state.get("obs_norm") is not None:
             self.obs_norm.load_state_dict(state["obs_norm"])
@@ -468,6 +496,11 @@ class PPO(Algorithm):
             self.draw.rng.bit_generator.state = state["draw_rng"]
         if self.scaler is not None and state.get("reward_scaler") is not None:
             self.scaler.load_state_dict(state["reward_scaler"])
+
+    def start_from(self, state: dict[str, Any]) -> None:
+        # actor, critic and observation statistics; Adam, lr schedule, sampler, scaler fresh
+        self.learner.load_networks(state["learner"])
+        self.learner.start_obs_norm(state["learner"].get("obs_norm"))
 
     # ------------------------------------------------------------------ evaluation
     def policy_state(self) -> dict[str, Any]:

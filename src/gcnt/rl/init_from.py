@@ -1,0 +1,114 @@
+"""Fine-tuning: a run that starts from another run's trained networks (``init_from: RUN_DIR`` in a
+recipe, or ``gcnt train RECIPE --init-from RUN_DIR``).
+
+The new run builds its networks for its own robots (the robot table is static data, rebuilt for
+any robots), then takes over the learnt weights of the source run's last checkpoint through
+:meth:`gcnt.rl.algorithm.Algorithm.start_from`: for TD3 the actor, both critics and their target
+copies; for PPO the actor, the critic and the observation statistics (with their counts, so the
+normalisation the policy was trained with is kept and moves slowly). Optimisers, replay buffers,
+the learning-rate schedule, the robot sampler, the reward scaler and every counter start fresh,
+as in a run from scratch, and the run's own seed drives its envs and exploration.
+
+The two runs must agree on what the weights mean: the algorithm, the benchmark and the network
+(method, size preset and sizes); every tensor's shape is then checked, which covers the per-limb
+token width and a height map present on one side only. A disagreement is one RecipeError naming
+both sides. The new run's ``recipe.yaml`` records where it started, under ``resolved.init_from``:
+the source run directory, the env steps of its checkpoint and the checkpoint file's SHA-256.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from pathlib import Path
+from typing import Any
+
+from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl.algorithm import Algorithm
+from gcnt.rl.run_dir import RunDir
+from gcnt.suggest import existing_path
+
+#: the key of the record in the run's ``resolved:`` section
+INIT_KEY = "init_from"
+
+
+def origin(recipe: Recipe, algo: Algorithm, *, resume: bool = False) -> dict[str, Any]:
+    """Where the run of ``recipe`` starts: ``{}`` from scratch; else ``{"init_from": record}``,
+    with the source run's weights loaded into ``algo`` (a new run) or the record already in the
+    recipe's ``resolved:`` section kept (a resumed run, whose checkpoint holds its weights)."""
+    if not recipe.init_from:
+        return {}
+    if resume:
+        record = recipe.resolved.get(INIT_KEY)
+        if record is None:
+            raise RecipeError(
+                f"init_from={recipe.init_from}: this run was not started from a trained run and "
+                "resumes its own checkpoint; start a new run with --init-from instead"
+            )
+        return {INIT_KEY: record}
+    return {INIT_KEY: start_from(recipe, algo)}
+
+
+def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
+    """Load the trained networks of the run ``recipe.init_from`` into ``algo`` (built for
+    ``recipe``); returns the record of where it started."""
+    where = f"init_from {recipe.init_from}"
+    source = RunDir(existing_path(recipe.init_from, "init_from: run directory"))
+    check_compatible(recipe, source.load_recipe(), where)
+    state = source.load_checkpoint(map_location=recipe.device)
+    if state.get("algo", recipe.algo) != recipe.algo:
+        raise RecipeError(
+            f"{where}: its checkpoint is a {state['algo']} learner, this recipe has "
+            f"algo={recipe.algo}"
+        )
+    try:
+        algo.start_from(state["learner"])
+    except (ValueError, KeyError) as e:
+        if isinstance(e, RecipeError):
+            raise
+        detail = str(e).splitlines()[0] if str(e) else repr(e)
+        raise RecipeError(f"{where}: {detail}") from None
+    return {
+        "run": str(source.path.resolve()),
+        "env_steps": int(state["env_steps"]),
+        "checkpoint_sha256": file_sha256(source.checkpoint_path),
+    }
+
+
+def check_compatible(recipe: Recipe, source: Recipe, where: str = "init_from") -> None:
+    """A RecipeError naming both sides when the trained run ``source`` and ``recipe`` differ in
+    algorithm, benchmark or network (method, or any size its preset and overrides resolve to)."""
+    for key, theirs, ours in (
+        ("algo", source.algo, recipe.algo),
+        ("env.benchmark", source.env.benchmark, recipe.env.benchmark),
+        ("network.name", source.network.name, recipe.network.name),
+    ):
+        if theirs != ours:
+            raise RecipeError(f"{where}: that run has {key}={theirs}, this recipe has {key}={ours}")
+    theirs, ours = network_sizes(source), network_sizes(recipe)
+    for key in ours:
+        if theirs.get(key) != ours[key]:
+            raise RecipeError(
+                f"{where}: that run's network has {key}={theirs.get(key)}, this recipe's has "
+                f"{key}={ours[key]} (network.preset / network.kwargs)"
+            )
+
+
+def network_sizes(recipe: Recipe) -> dict[str, Any]:
+    """The recipe's network configuration with its preset and overrides resolved, as the
+    network builder reads it."""
+    from gcnt.nn.registry import make_config
+    from gcnt.rl.factories import benchmark_of
+
+    net = recipe.network
+    preset = net.preset or benchmark_of(recipe).preset
+    try:
+        config = make_config(net.name, preset, **net.sizes())
+    except (ValueError, TypeError) as e:
+        raise RecipeError(f"network: {e}") from None
+    return dataclasses.asdict(config)
+
+
+def file_sha256(path: Path) -> str:
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
