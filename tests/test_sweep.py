@@ -146,3 +146,98 @@ def test_submitit_debug_executor(tmp_path: Path) -> None:
     assert run["state"] == "done" and run["job_id"]
     assert Run(run["run_dir"]).finished()
     assert (sw / "submitit").is_dir()
+
+
+def _spec(tmp_path: Path, **kw) -> S.RunSpec:
+    run_dir = tmp_path / "run"
+    base = dict(id="t/td3-gcnt/seed0", run_dir=str(run_dir), recipe=str(QUICKSTART), task="t")
+    base.update(algo="td3", method="gcnt", seed=0, overrides=[f"run_dir={run_dir}"])
+    return S.RunSpec(**{**base, **kw})
+
+
+def test_commands_continue_a_run_from_any_point(tmp_path: Path) -> None:
+    spec = _spec(tmp_path)
+    never = S.commands(spec)[0][1]
+    assert "--resume" not in never and never[-1] == f"run_dir={spec.run_dir}"
+    run = Path(spec.run_dir)
+    (run / "checkpoints").mkdir(parents=True)
+    shutil.copy(QUICKSTART, run / "recipe.yaml")  # stopped before its first checkpoint
+    assert S.commands(spec)[0][1][-3:] == ["train", "--resume", spec.run_dir]
+    (run / "checkpoints" / "last.pt").write_bytes(b"")
+    assert S.commands(spec)[0][1][-3:] == ["train", "--resume", spec.run_dir]
+    spec.state = "done"
+    assert S.commands(spec) == []
+
+
+@pytest.mark.parametrize(
+    ("before", "slurm", "record", "after"),
+    [
+        ("queued", "PENDING", None, "queued"),
+        ("queued", "PENDING", {"state": "requeued"}, "requeued"),  # waits again after it ran
+        ("queued", "RUNNING", {"state": "running"}, "running"),
+        ("running", "REQUEUED", {"state": "running"}, "requeued"),
+        ("running", "CANCELLED by 0", {"state": "stopped"}, "cancelled"),
+        ("running", "FAILED", None, "failed"),
+        ("running", "COMPLETED", {"state": "failed", "returncode": 1}, "failed"),
+        ("running", None, {"state": "stopped"}, "cancelled"),  # Slurm forgot the job
+        ("queued", None, None, "cancelled"),  # gone without running
+        ("running", "TIMEOUT", {"state": "running"}, "pending"),  # no checkpoint: from step 0
+    ],
+)
+def test_a_slurm_run_state_comes_from_slurm_then_its_record(
+    tmp_path: Path, before, slurm, record, after
+) -> None:
+    spec = _spec(tmp_path, state=before, job_id="7_0")
+    spec.refresh(slurm, record)
+    assert spec.state == after
+    if record and "returncode" in record:
+        assert spec.returncode == record["returncode"]
+
+
+def test_slurm_states_never_guess_when_squeue_fails(tmp_path: Path, monkeypatch) -> None:
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    squeue = bin_dir / "squeue"
+    squeue.write_text("#!/bin/sh\necho '7_0|RUNNING'\necho '7_1|PENDING'\necho '8|RUNNING'\n")
+    squeue.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}:/usr/bin:/bin")
+    assert S.slurm_states(["7_0", "7_1"]) == {"7_0": "RUNNING", "7_1": "PENDING"}
+    squeue.write_text("#!/bin/sh\necho 'slurm_load_jobs error' >&2\nexit 1\n")
+    with pytest.raises(S.SweepError, match="squeue failed"):
+        S.slurm_states(["7_0"])
+
+
+def test_a_task_at_the_time_limit_stops_its_trainer_and_resubmits_itself(tmp_path: Path) -> None:
+    """submitit's checkpoint(): SIGUSR2 to `gcnt train` (here a stand-in that exits 75 on it),
+    wait, record "requeued", return the same task for submitit to requeue."""
+    pytest.importorskip("submitit")
+    import signal
+
+    sweep = tmp_path / "sw"
+    spec = _spec(tmp_path, job_id="7_0")
+    task = S.SweepTask(grace_s=20)
+    stand_in = (
+        "import signal, sys, time; "
+        "signal.signal(signal.SIGUSR2, lambda *a: sys.exit(75)); print('up', flush=True); "
+        "time.sleep(60)"
+    )
+    task._proc = subprocess.Popen([sys.executable, "-c", stand_in], stdout=subprocess.PIPE)
+    assert task._proc.stdout.readline().strip() == b"up"
+    S.write_record(sweep, spec, "running", attempt=1)
+    args = (S.asdict(spec), 1, str(sweep))
+    again = task.checkpoint(*args)
+    assert task._proc.returncode == 75
+    assert isinstance(again.function, S.SweepTask) and again.args == args
+    assert S.read_record(sweep, spec)["state"] == "requeued"
+    assert signal.getsignal(signal.SIGUSR2) is not None  # the caller's handlers are untouched
+
+
+def test_submitit_logs_go_to_the_sweep_not_the_terminal(tmp_path: Path, capsys) -> None:
+    import logging
+
+    path = S.submitit_log(tmp_path)
+    logging.getLogger("submitit").warning("Bypassing sacct error")
+    assert "Bypassing" not in capsys.readouterr().err
+    for h in logging.getLogger("submitit").handlers:
+        h.flush()
+    assert "Bypassing sacct error" in path.read_text()

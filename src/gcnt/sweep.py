@@ -19,19 +19,34 @@ Two ways to run:
 * through ``submitit``: one job array, one run per task (``executor="slurm"``), or submitit's
   ``local`` / ``debug`` executors on this machine.
 
-States: ``pending`` (not started), ``running``, ``partial`` (a checkpoint, not finished),
-``done`` (trained; evaluations may be listed separately), ``failed`` (the last attempt exited
-non-zero: see its log), ``submitted`` (handed to submitit).
+States: ``pending`` (not started), ``queued`` (a Slurm job waits for its turn), ``running`` (a
+process trains it: the run directory's lock is held, or Slurm runs its job), ``requeued`` (its
+Slurm job hit the time limit or was preempted, checkpointed and waits to continue), ``partial`` (a
+checkpoint, nobody training it), ``cancelled`` (its job was stopped from outside, e.g.
+``scancel``), ``done`` (trained; evaluations listed separately), ``failed`` (the last attempt
+exited with an error: see its log). A sweep never starts or submits a run that is queued, running
+or requeued; every other unfinished run continues with ``gcnt train --resume`` (from step 0 where
+it has no checkpoint yet).
+
+On Slurm the manifest stores the executor and its options (``gcnt sweep DIR`` continues on the
+same cluster), each job writes its own record (``<sweep>/records/``: start, end, exit code,
+evaluations; Slurm's accounting may be off), and the state shown comes from ``squeue`` (or
+``sacct``, where accounting exists) while Slurm knows the job. A job stopped by the time limit or
+a preemption checkpoints and requeues itself (:class:`SweepTask`, submitit's checkpointing).
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import getpass
 import json
 import logging
 import os
 import re
+import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -56,6 +71,16 @@ THREAD_VARS = (
     "NUMEXPR_NUM_THREADS",
     "VECLIB_MAXIMUM_THREADS",
 )
+
+
+#: states where a process or a Slurm job has the run: never started a second time
+ACTIVE = ("queued", "running", "requeued")
+#: Slurm's job states (``squeue --states=all``, ``sacct``) by what they mean for a run
+SLURM_RUNNING = ("RUNNING", "COMPLETING", "CONFIGURING", "STAGE_OUT", "SIGNALING", "SUSPENDED")
+SLURM_WAITING = ("PENDING", "RESV_DEL_HOLD", "SPECIAL_EXIT", "STOPPED")
+SLURM_REQUEUED = ("REQUEUED", "REQUEUE_FED", "REQUEUE_HOLD", "RESIZING")
+SLURM_FAILED = ("FAILED", "NODE_FAIL", "BOOT_FAIL", "OUT_OF_MEMORY", "DEADLINE")
+RECORDS = "records"
 
 
 class SweepError(ValueError):
@@ -104,20 +129,69 @@ class RunSpec:
     #: the one robot this run trains (``--per-robot``); None: the recipe's robots
     robot: str | None = None
 
-    def refresh(self) -> None:
-        """Set the training state from the run directory (not for a run in progress)."""
+    def files_state(self) -> str:
+        """What the run directory shows: ``done``, ``partial`` (a checkpoint) or ``pending``."""
         path = Path(self.run_dir)
         if not (path / RECIPE_FILE).is_file():
-            if self.state not in ("failed",):
-                self.state = "pending"
-            return
+            return "pending"
         run = Run(path)
         if run.finished():
+            return "done"
+        return "partial" if run.has_checkpoint() else "pending"
+
+    def refresh(self, slurm: str | None = None, record: dict[str, Any] | None = None) -> None:
+        """Set the state from what knows it: Slurm's state of the run's job (``slurm``, from
+        :func:`slurm_states`), then the run directory's lock (a process trains it), then the
+        job's own record (:func:`read_record`) and the run directory."""
+        if record:
+            self.take_record(record)
+        files = self.files_state()
+        if slurm is not None:
+            word = slurm.split()[0].rstrip("+")  # "CANCELLED by 0", "RUNNING"
+            if word in SLURM_RUNNING:
+                self.state = "running"
+                return
+            if word in SLURM_WAITING:
+                # waiting again after it ran (submitit's requeue, scontrol requeue): requeued
+                self.state = "requeued" if record or self.state == "requeued" else "queued"
+                return
+            if word in SLURM_REQUEUED:
+                self.state = "requeued"
+                return
+        from gcnt.rl.run_lock import holder
+
+        if files != "done" and holder(self.run_dir) is not None:
+            self.state = "running"
+            return
+        rec_state = (record or {}).get("state")
+        word = (slurm or "").split(" ")[0].rstrip("+")
+        if files == "done":
             self.state = "done"
-        elif run.has_checkpoint():
-            self.state = "partial" if self.state != "failed" else "failed"
-        elif self.state not in ("failed",):
-            self.state = "pending"
+        elif word == "CANCELLED":
+            self.state = "cancelled"
+        elif rec_state == "failed" or word in SLURM_FAILED:
+            self.state = "failed"
+        elif word in ("TIMEOUT", "PREEMPTED"):  # ended without requeue: continue it next time
+            self.state = files
+        elif (
+            self.job_id
+            and self.state in (*ACTIVE, "cancelled")
+            and rec_state in (None, *ACTIVE, "stopped")
+        ):
+            # the job ended (Slurm no longer lists it) short of the end and without a final
+            # record of its own: stopped from outside (scancel, or killed)
+            self.state = "cancelled"
+        elif self.state == "failed" and rec_state is None:
+            pass  # the last attempt failed: see its log
+        else:
+            self.state = files
+
+    def take_record(self, record: dict[str, Any]) -> None:
+        """Times, exit code, evaluations and job id from the job's own record."""
+        for key in ("started", "finished", "returncode", "seconds", "job_id"):
+            if record.get(key) is not None:
+                setattr(self, key, record[key])
+        self.eval_state.update(record.get("eval_state") or {})
 
     def pending_evals(self) -> list[str]:
         return [s for s in self.evals if self.eval_state.get(s) != "done"]
@@ -136,7 +210,9 @@ def commands(spec: RunSpec) -> list[tuple[str, list[str]]]:
     out: list[tuple[str, list[str]]] = []
     run_dir = Path(spec.run_dir)
     if spec.state != "done":
-        if (run_dir / CHECKPOINT).is_file():
+        # once the run directory holds its recipe, --resume continues it: from its checkpoint,
+        # or from step 0 when it was stopped before the first one
+        if (run_dir / RECIPE_FILE).is_file() or (run_dir / CHECKPOINT).is_file():
             out.append(("train", [*gcnt_command(), "train", "--resume", spec.run_dir]))
         else:
             out.append(("train", [*gcnt_command(), "train", spec.recipe, *spec.overrides]))
@@ -382,10 +458,19 @@ class Manifest:
             else:
                 self.runs.append(r)
 
+    @property
+    def executor(self) -> str:
+        """Where the sweep's runs go: ``pool`` (this machine's pool), or a submitit executor."""
+        cluster = self.meta.get("cluster") or {"executor": self.meta.get("executor", "pool")}
+        return cluster.get("executor", "pool")
+
     def refresh(self) -> None:
+        """Every run's state from Slurm (for a Slurm sweep), the run's lock, its job record and
+        its directory (see :meth:`RunSpec.refresh`)."""
+        jobs = [r.job_id for r in self.runs if r.job_id]
+        slurm = slurm_states(jobs) if jobs and self.executor == "slurm" else {}
         for r in self.runs:
-            if r.state != "running":
-                r.refresh()
+            r.refresh(slurm.get(r.job_id or ""), read_record(self.dir, r))
 
     def save(self) -> Path:
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -404,11 +489,14 @@ class Manifest:
 
     def table(self) -> str:
         width = max(len(r.id) for r in self.runs)
-        lines = [f"{'run':<{width}}  {'state':<9}  {'steps':>9}  evaluations"]
+        jobs = any(r.job_id for r in self.runs)
+        job_col = f"  {'job':<12}" if jobs else ""
+        lines = [f"{'run':<{width}}  {'state':<9}  {'steps':>9}{job_col}  evaluations"]
         for r in self.runs:
             steps = Run(r.run_dir).last_env_steps() if Path(r.run_dir, RECIPE_FILE).is_file() else 0
             ev = ", ".join(f"{k}: {r.eval_state.get(k, 'pending')}" for k in r.evals) or "-"
-            lines.append(f"{r.id:<{width}}  {r.state:<9}  {steps:>9}  {ev}")
+            job = f"  {r.job_id or '-':<12}" if jobs else ""
+            lines.append(f"{r.id:<{width}}  {r.state:<9}  {steps:>9}{job}  {ev}")
         return "\n".join(lines)
 
 
@@ -478,13 +566,17 @@ def _log_path(sweep_dir: Path, spec: RunSpec) -> Path:
 
 
 def _finish_step(spec: RunSpec, what: str, rc: int) -> None:
+    from gcnt.rl.stop import EXIT_STOPPED
+
     if what == "train":
         spec.returncode = rc
-        spec.refresh()
-        if rc != 0:
+        files = spec.files_state()
+        if rc == EXIT_STOPPED:  # stopped on request, its checkpoint written: not a failure
+            spec.state = files
+        elif rc != 0:
             spec.state = "failed"
-        elif spec.state != "done":  # exited cleanly but short of total_frames
-            spec.state = "partial"
+        else:  # "partial": exited cleanly but short of total_frames
+            spec.state = "done" if files == "done" else "partial"
     else:
         spec.eval_state[what.split(":", 1)[1]] = "done" if rc == 0 else "failed"
 
@@ -498,8 +590,11 @@ def run_local(
     on_change: Callable[[RunSpec], None] | None = None,
 ) -> Manifest:
     """Run what is left of every run in a pool of ``jobs`` pinned slots; save the manifest on
-    every change. Ctrl-C stops the children (their checkpoints stay for a later resume)."""
-    todo = [r for r in manifest.runs if commands(r)]
+    every change. A run another process trains (its lock is held) is left alone. Ctrl-C stops
+    the children, which checkpoint first (``gcnt train`` on SIGINT/SIGTERM)."""
+    from gcnt.rl.run_lock import holder
+
+    todo = [r for r in manifest.runs if r.state not in ACTIVE and commands(r)]
     slots = slot_cores(jobs, cpus_per_run)
     free = list(range(jobs))
     active: dict[int, tuple[subprocess.Popen, RunSpec, list, Any, float]] = {}
@@ -534,6 +629,10 @@ def run_local(
         while todo or active:
             while free and todo:
                 spec = todo.pop(0)
+                if (who := holder(spec.run_dir)) is not None:  # another process trains it
+                    log.warning("%s: trained by %s; not started", spec.id, who)
+                    spec.state = "running"
+                    continue
                 start(free.pop(0), spec, commands(spec))
             time.sleep(poll)
             for slot in list(active):
@@ -564,41 +663,211 @@ def run_local(
             except subprocess.TimeoutExpired:
                 proc.kill()
             fh.close()
-            spec.state = "running"
-            spec.refresh()
+            spec.state = spec.files_state()
         manifest.save()
         raise
     return manifest
 
 
+# ----------------------------------------------------------------------------- job records
+
+
+def record_path(sweep_dir: str | Path, spec: RunSpec) -> Path:
+    return Path(sweep_dir) / RECORDS / f"{spec.id.replace('/', '__')}.json"
+
+
+def read_record(sweep_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
+    """What the run's last job wrote about itself (None: no job ran it yet)."""
+    try:
+        data = json.loads(record_path(sweep_dir, spec).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def write_record(sweep_dir: str | Path, spec: RunSpec, state: str, **extra: Any) -> None:
+    """The job's record of its run (atomic: the sweep may read it at any time)."""
+    path = record_path(sweep_dir, spec)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = {
+        "state": state,
+        "job_id": spec.job_id,
+        "started": spec.started,
+        "finished": spec.finished,
+        "returncode": spec.returncode,
+        "seconds": spec.seconds,
+        "eval_state": spec.eval_state,
+        "host": socket.gethostname(),
+        "updated": now(),
+        **extra,
+    }
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------- Slurm's state
+
+
+def slurm_states(job_ids: Sequence[str]) -> dict[str, str]:
+    """Slurm's state of each job (array tasks as ``123_4``): ``squeue`` knows the jobs in the
+    queue and those that ended within the last ``MinJobAge`` seconds; ``sacct`` the older ones,
+    where accounting is on. A job neither knows is left out (its record and run directory
+    tell)."""
+    wanted = {j for j in job_ids if j}
+    out: dict[str, str] = {}
+    if not wanted or shutil.which("squeue") is None:
+        return out
+    user = os.environ.get("USER") or getpass.getuser()
+    squeue = _slurm_query(["squeue", "-h", "-r", "--states=all", "-u", user, "-o", "%i|%T"])
+    if squeue is None:  # never guess: a job taken for gone would be submitted twice
+        raise SweepError("squeue failed (is the Slurm controller reachable?); nothing submitted")
+    for line in squeue:
+        job, _, state = line.partition("|")
+        if job in wanted:
+            out[job] = state
+    rest = sorted(wanted - out.keys())
+    if rest and shutil.which("sacct"):
+        sacct = ["sacct", "-n", "-P", "-X", "-o", "JobID,State", "-j", ",".join(rest)]
+        for line in _slurm_query(sacct) or []:  # none: accounting is off
+            job, _, state = line.partition("|")
+            if job in wanted:
+                out[job] = state
+    return out
+
+
+def _slurm_query(argv: list[str]) -> list[str] | None:
+    """The output lines of a Slurm query; None when it fails (accounting off, no controller)."""
+    try:
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout.splitlines() if done.returncode == 0 else None
+
+
 # ----------------------------------------------------------------------------- submitit
+
+#: submitit requeues a job stopped by its time limit at most this many times (its default, 3,
+#: would end a 10M-step run after four 24-hour slots); preemptions are not counted
+MAX_TIMEOUTS = 1000
+
+
+class SweepTask:
+    """One sweep run as a submitit job (Slurm array task): train (``gcnt train``, resumed where
+    the run directory has begun), then evaluate; returns the run's record for the manifest.
+
+    Slurm warns a job before its time limit with SIGUSR2 (submitit's ``--signal``); submitit then
+    calls :meth:`checkpoint`, which asks ``gcnt train`` to stop (it checkpoints and exits 75),
+    waits for it, and returns the same task for submitit to requeue: the next attempt resumes the
+    run from that checkpoint. On SIGTERM (``scancel``) ``gcnt train`` checkpoints and stops too;
+    the job is not requeued and the run's record says ``stopped``.
+    """
+
+    def __init__(self, grace_s: float = 60.0) -> None:
+        #: how long :meth:`checkpoint` waits for the training process to write its checkpoint
+        self.grace_s = grace_s
+        self._proc: subprocess.Popen | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"grace_s": self.grace_s}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(**state)
+
+    def __call__(
+        self, spec_dict: dict[str, Any], threads: int = 1, sweep_dir: str | None = None
+    ) -> dict[str, Any]:
+        spec = RunSpec(**spec_dict)
+        spec.job_id = _job_id() or spec.job_id
+        sweep = Path(sweep_dir) if sweep_dir else Path(spec.run_dir).parent
+        env = pinned_env(threads)
+        logf = Path(spec.log) if spec.log else None
+        previous = read_record(sweep, spec) or {}
+        spec.started = previous.get("started") or now()
+        spec.state = spec.files_state()
+        attempt = int(previous.get("attempt", 0)) + 1
+        state = "done"
+        for what, argv in commands(spec):
+            write_record(sweep, spec, "running", attempt=attempt, step=what)
+            t0 = time.monotonic()
+            rc = self._run(argv, env, logf)
+            _finish_step(spec, what, rc)
+            if what == "train":
+                spec.finished, spec.seconds = now(), round(time.monotonic() - t0, 1)
+                if spec.state != "done":
+                    from gcnt.rl.stop import EXIT_STOPPED
+
+                    stopped = rc == EXIT_STOPPED or rc < 0
+                    state = "stopped" if stopped else spec.state
+                    break
+        if state == "done" and "failed" in spec.eval_state.values():
+            state = "failed"
+        write_record(sweep, spec, state, attempt=attempt)
+        return asdict(spec)
+
+    def _run(self, argv: list[str], env: dict[str, str], logf: Path | None) -> int:
+        """Run one step, waiting by polling: a blocking wait would keep :meth:`checkpoint`
+        (called from submitit's signal handler in this thread) from seeing the process end."""
+        out = None
+        if logf is not None:
+            logf.parent.mkdir(parents=True, exist_ok=True)
+            out = logf.open("a")
+            out.write(f"\n# {now()} {' '.join(argv)}\n")
+            out.flush()
+        try:
+            # SIGUSR2 ignored until gcnt train installs its handler: the default would kill a
+            # process still starting; checkpoint() repeats the signal until it is heard
+            self._proc = subprocess.Popen(
+                argv,
+                stdout=out,
+                stderr=subprocess.STDOUT if out else None,
+                env=env,
+                preexec_fn=lambda: signal.signal(signal.SIGUSR2, signal.SIG_IGN),
+            )
+            while (rc := self._proc.poll()) is None:
+                time.sleep(0.5)
+            return rc
+        finally:
+            if out is not None:
+                out.close()
+
+    def checkpoint(self, *args: Any, **kwargs: Any):
+        """Called by submitit on SIGUSR2 (time limit near, or preemption): stop ``gcnt train``
+        with its checkpoint, then the same task again, for submitit to requeue."""
+        from submitit.helpers import DelayedSubmission
+
+        proc, t0 = self._proc, time.monotonic()
+        while proc is not None and proc.poll() is None and time.monotonic() - t0 < self.grace_s:
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGUSR2)  # gcnt train checkpoints and exits
+            for _ in range(10):
+                if proc.poll() is not None:
+                    break
+                time.sleep(0.5)
+        if proc is not None and proc.poll() is None:
+            proc.kill()  # out of time: the run resumes from its last scheduled checkpoint
+            proc.wait()
+        spec = RunSpec(**(args[0] if args else kwargs["spec_dict"]))
+        sweep = args[2] if len(args) > 2 else kwargs.get("sweep_dir")
+        if sweep:
+            record = read_record(sweep, spec) or {}
+            spec.started, spec.job_id = record.get("started"), _job_id()
+            write_record(sweep, spec, "requeued", attempt=record.get("attempt", 1))
+        return DelayedSubmission(SweepTask(self.grace_s), *args, **kwargs)
+
+
+def _job_id() -> str | None:
+    """This Slurm job's id as squeue shows it (``123_4`` for an array task)."""
+    array, task = os.environ.get("SLURM_ARRAY_JOB_ID"), os.environ.get("SLURM_ARRAY_TASK_ID")
+    if array and task:
+        return f"{array}_{task}"
+    return os.environ.get("SLURM_JOB_ID")
 
 
 def run_task(spec_dict: dict[str, Any], threads: int = 1) -> dict[str, Any]:
-    """One sweep run inside a submitit job (Slurm array task): train, then evaluate.
-
-    Returns the updated run record; the submitting process writes it into the manifest.
-    """
-    spec = RunSpec(**spec_dict)
-    spec.refresh()
-    env = pinned_env(threads)
-    logf = Path(spec.log or "")
-    for what, argv in commands(spec):
-        t0 = time.monotonic()
-        if spec.log:
-            logf.parent.mkdir(parents=True, exist_ok=True)
-            with logf.open("a") as fh:
-                fh.write(f"\n# {now()} {' '.join(argv)}\n")
-                fh.flush()
-                rc = subprocess.run(argv, stdout=fh, stderr=subprocess.STDOUT, env=env).returncode
-        else:
-            rc = subprocess.run(argv, env=env).returncode
-        _finish_step(spec, what, rc)
-        if what == "train":
-            spec.finished, spec.seconds = now(), round(time.monotonic() - t0, 1)
-            if spec.state != "done":
-                break
-    return asdict(spec)
+    """One sweep run in this process (train, then evaluate): :class:`SweepTask` without a
+    scheduler."""
+    return SweepTask()(spec_dict, threads)
 
 
 @dataclass
@@ -615,55 +884,102 @@ class ClusterOptions:
     account: str | None = None
     qos: str | None = None
     constraint: str | None = None
+    #: seconds before the time limit at which Slurm sends SIGUSR2 (submitit's default, 90)
+    signal_delay_s: int = 90
     extra: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ClusterOptions:
+        known = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in data.items() if k in known})
 
-def run_submitit(manifest: Manifest, opts: ClusterOptions, *, wait: bool = True) -> Manifest:
-    """Submit every unfinished run as one submitit job array; with ``wait``, collect the results
-    into the manifest as the tasks end."""
+
+def submitit_log(sweep_dir: Path) -> Path:
+    """Route submitit's log lines (its sacct fallbacks, job states, tracebacks of jobs) to
+    ``<sweep>/submitit/submitit.log`` instead of the terminal."""
+    path = sweep_dir / "submitit" / "submitit.log"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    logger = logging.getLogger("submitit")
+    for h in list(logger.handlers):
+        if not (isinstance(h, logging.FileHandler) and Path(h.baseFilename) == path.resolve()):
+            logger.removeHandler(h)
+            if isinstance(h, logging.FileHandler):
+                h.close()
+    if not logger.handlers:
+        handler = logging.FileHandler(path)
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+        logger.addHandler(handler)
+    logger.propagate = False
+    return path
+
+
+def run_submitit(
+    manifest: Manifest,
+    opts: ClusterOptions,
+    *,
+    wait: bool = True,
+    poll: float = 5.0,
+    on_change: Callable[[RunSpec], None] | None = None,
+) -> Manifest:
+    """Submit every unfinished run that no job has (queued, running or requeued ones are left
+    alone) as one submitit job array; with ``wait``, follow the runs' states until none is
+    active. The executor and its options are stored in the manifest."""
     import submitit
 
-    todo = [r for r in manifest.runs if commands(r)]
-    if not todo:
-        return manifest
-    folder = manifest.dir / "submitit"
-    cluster = None if opts.executor == "slurm" else opts.executor
-    ex = submitit.AutoExecutor(folder=folder, cluster=cluster)
-    params: dict[str, Any] = {
-        "name": f"gcnt-{manifest.dir.name}",
-        "timeout_min": opts.time_min,
-        "cpus_per_task": opts.cpus_per_run,
-        "slurm_array_parallelism": opts.array_parallelism,
-    }
-    if opts.gpus_per_run:
-        params["gpus_per_node"] = opts.gpus_per_run
-    if opts.mem_gb:
-        params["mem_gb"] = opts.mem_gb
-    for key in ("partition", "account", "qos", "constraint"):
-        if value := getattr(opts, key):
-            params[f"slurm_{key}"] = value
-    params.update(opts.extra)
-    ex.update_parameters(**params)
-    for spec in todo:
-        spec.log = str(_log_path(manifest.dir, spec))
-    with ex.batch():
-        jobs = [ex.submit(run_task, asdict(spec), opts.cpus_per_run) for spec in todo]
-    for job, spec in zip(jobs, todo, strict=True):
-        spec.job_id, spec.state, spec.started = str(job.job_id), "submitted", now()
-    manifest.meta["executor"] = opts.executor
+    manifest.meta["cluster"] = asdict(opts)
+    manifest.refresh()
+    todo = [r for r in manifest.runs if r.state not in ACTIVE and commands(r)]
+    if todo:
+        submitit_log(manifest.dir)
+        folder = manifest.dir / "submitit"
+        cluster = None if opts.executor == "slurm" else opts.executor
+        kwargs = {"slurm_max_num_timeout": MAX_TIMEOUTS} if opts.executor == "slurm" else {}
+        ex = submitit.AutoExecutor(folder=folder, cluster=cluster, **kwargs)
+        params: dict[str, Any] = {
+            "name": f"gcnt-{manifest.dir.name}",
+            "timeout_min": opts.time_min,
+            "cpus_per_task": opts.cpus_per_run,
+            "slurm_array_parallelism": opts.array_parallelism,
+            "slurm_signal_delay_s": opts.signal_delay_s,
+        }
+        if opts.gpus_per_run:
+            params["gpus_per_node"] = opts.gpus_per_run
+        if opts.mem_gb:
+            params["mem_gb"] = opts.mem_gb
+        for key in ("partition", "account", "qos", "constraint"):
+            if value := getattr(opts, key):
+                params[f"slurm_{key}"] = value
+        params.update(opts.extra)
+        ex.update_parameters(**params)
+        for spec in todo:
+            spec.log = str(_log_path(manifest.dir, spec))
+            record_path(manifest.dir, spec).unlink(missing_ok=True)  # a fresh job, a fresh record
+        task = SweepTask(grace_s=max(10, opts.signal_delay_s - 30))
+        with ex.batch():
+            jobs = [
+                ex.submit(task, asdict(spec), opts.cpus_per_run, str(manifest.dir)) for spec in todo
+            ]
+        for job, spec in zip(jobs, todo, strict=True):
+            spec.job_id, spec.state = str(job.job_id), "queued"
+            spec.started = spec.finished = spec.returncode = spec.seconds = None
+            if on_change:
+                on_change(spec)
     manifest.save()
-    if not wait:
-        return manifest
-    for job, spec in zip(jobs, todo, strict=True):
-        try:
-            result = job.result()
-        except Exception as e:  # noqa: BLE001 - a failed task: record it, keep collecting
-            log.error("run %s (job %s) failed: %s", spec.id, spec.job_id, e)
-            spec.state = "failed"
-        else:
-            job_id = spec.job_id
-            for k, v in result.items():
-                setattr(spec, k, v)
-            spec.job_id = job_id
+    if opts.executor != "slurm":
+        # submitit's local executors: wait on the jobs themselves (no squeue to ask)
+        for job in jobs if todo else []:
+            if wait:
+                with contextlib.suppress(Exception):  # a failed job: its record and log tell
+                    job.result()
+        manifest.refresh()
         manifest.save()
+        return manifest
+    while wait and any(r.state in ACTIVE for r in manifest.runs):
+        time.sleep(poll)
+        before = {r.id: r.state for r in manifest.runs}
+        manifest.refresh()
+        manifest.save()
+        for r in manifest.runs:
+            if on_change and r.state != before[r.id]:
+                on_change(r)
     return manifest

@@ -114,6 +114,14 @@ def _options(p: argparse.ArgumentParser) -> None:
     slurm.add_argument(
         "--array-parallelism", type=int, default=64, help="array tasks at a time (default 64)"
     )
+    slurm.add_argument(
+        "--signal-delay",
+        type=int,
+        default=90,
+        metavar="SECONDS",
+        help="Slurm warns a run this long before its time limit; it checkpoints and requeues "
+        "itself (default 90)",
+    )
     slurm.add_argument("--no-wait", action="store_true", help="submit and return")
 
 
@@ -141,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
         log.error("give recipe files or a sweep directory (see gcnt sweep --help)")
         return 2
     from gcnt.sweep import (
+        ACTIVE,
         MANIFEST,
         ClusterOptions,
         Manifest,
@@ -209,6 +218,16 @@ def run(args: argparse.Namespace) -> int:
             return 0
         t0 = time.monotonic()
         with SweepLock(manifest.dir):
+
+            def report(spec) -> None:
+                evals = ", ".join(f"eval {k}: {v}" for k, v in spec.eval_state.items())
+                job = f" (job {spec.job_id})" if spec.job_id and spec.state in ACTIVE else ""
+                print(
+                    f"{now()}  {spec.id}: {spec.state}{job}{'; ' + evals if evals else ''}",
+                    flush=True,
+                )
+
+            stored = manifest.meta.get("cluster") or {}
             if args.slurm or args.executor:
                 opts = ClusterOptions(
                     executor=args.executor or "slurm",
@@ -221,8 +240,20 @@ def run(args: argparse.Namespace) -> int:
                     account=args.account,
                     qos=args.qos,
                     constraint=args.constraint,
+                    signal_delay_s=args.signal_delay,
                 )
-                run_submitit(manifest, opts, wait=not args.no_wait)
+            elif stored.get("executor", "pool") != "pool":  # continued on its own cluster
+                opts = ClusterOptions.from_dict(stored)
+                print(f"sweep {manifest.dir}: on {opts.executor}, as submitted before", flush=True)
+            else:
+                opts = None
+            if opts is not None:
+                run_submitit(manifest, opts, wait=not args.no_wait, on_change=report)
+                if args.no_wait:
+                    print(manifest.table())
+                    print(f"manifest: {manifest.path} (submitted; gcnt sweep {manifest.dir} "
+                          "--status shows the states)")  # fmt: skip
+                    return 0
             else:
                 jobs = args.jobs or default_jobs(args.cpus_per_run)
                 todo = sum(1 for r in manifest.runs if not r.complete())
@@ -231,14 +262,7 @@ def run(args: argparse.Namespace) -> int:
                     f"{jobs} at a time x {args.cpus_per_run} core(s)",
                     flush=True,
                 )
-
-                def report(spec) -> None:
-                    evals = ", ".join(f"eval {k}: {v}" for k, v in spec.eval_state.items())
-                    print(
-                        f"{now()}  {spec.id}: {spec.state}{'; ' + evals if evals else ''}",
-                        flush=True,
-                    )
-
+                manifest.meta["cluster"] = {"executor": "pool", "cpus_per_run": args.cpus_per_run}
                 run_local(manifest, jobs=jobs, cpus_per_run=args.cpus_per_run, on_change=report)
     except SweepError as e:
         log.error("%s", e)
@@ -257,4 +281,7 @@ def run(args: argparse.Namespace) -> int:
     failed = [r for r in manifest.runs if r.state == "failed" or "failed" in r.eval_state.values()]
     for r in failed:
         print(f"failed: {r.id} (log: {r.log})", file=sys.stderr)
-    return 1 if failed else 0
+    cancelled = [r for r in manifest.runs if r.state == "cancelled"]
+    for r in cancelled:
+        print(f"cancelled: {r.id} (run the sweep again to continue it)", file=sys.stderr)
+    return 1 if failed or cancelled else 0

@@ -1,10 +1,14 @@
 """``gcnt train RECIPE [key=value ...]``, ``gcnt train RECIPE --seeds 0,1,2 [key=value ...]`` and
-``gcnt train --resume RUN_DIR [key=value ...]`` (options and overrides in any order)."""
+``gcnt train --resume RUN_DIR [key=value ...]``; ``--init-from RUN_DIR`` starts a new run from a
+trained one (options and overrides in any order)."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import logging
+import sys
 
 from gcnt.suggest import existing_path
 
@@ -25,38 +29,74 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="train these seeds together in this process (TD3, td3.schedule=mixed): networks "
         "stacked and updated in one step; one run directory per seed (resume each on its own)",
     )
+    p.add_argument(
+        "--init-from",
+        metavar="RUN_DIR",
+        help="fine-tune: start from the trained networks of the run in RUN_DIR (and its "
+        "observation statistics) with fresh optimisers and replay, on this recipe's robots "
+        "(the recipe key init_from)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
+    """Train; SIGTERM, SIGINT and SIGUSR2 (from the start, so that processes started on the way
+    inherit the blocked signals: :mod:`gcnt.rl.stop`) stop it after the current batch with a
+    checkpoint: one line and exit code EXIT_STOPPED."""
+    from gcnt.rl.stop import EXIT_STOPPED, TrainingStopped, stop_on_signals
+
+    try:
+        with stop_on_signals():
+            return _run(args)
+    except TrainingStopped as e:
+        print(f"gcnt train: {e}", file=sys.stderr, flush=True)
+        return EXIT_STOPPED
+
+
+def _run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
     from gcnt.rl.run_dir import RunDir
+    from gcnt.rl.run_lock import run_lock
 
+    if args.init_from is not None:
+        if args.resume:
+            raise RecipeError(
+                "--init-from starts a new run from a trained one; --resume continues a run "
+                "from its own checkpoint: give one of them"
+            )
+        # the recipe key, as the last override (a quoted YAML string: any path stays text)
+        args.overrides = [*args.overrides, f"init_from={json.dumps(args.init_from)}"]
     if args.seeds is not None:
         return _run_seeds(args)
-    if args.resume:
-        overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
-        run_dir = RunDir(existing_path(args.resume))
-        recipe = run_dir.load_recipe(overrides)
-        resume = run_dir.has_checkpoint()
-        if not resume:
-            log.info("%s has no checkpoint yet: training it from the start", run_dir.path)
-    else:
-        if not args.recipe:
-            raise RecipeError("give a recipe file or --resume RUN_DIR")
-        recipe = load_recipe(args.recipe, args.overrides)
-        run_dir = RunDir.for_recipe(recipe)
-        resume = False
-    from gcnt.rl.loop import prepare, train
+    with contextlib.ExitStack() as held:  # the run directory's lock, held until the end
+        if args.resume:
+            overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
+            run_dir = RunDir(existing_path(args.resume))
+            held.enter_context(run_lock(run_dir.path))
+            recipe = run_dir.load_recipe(overrides)
+            resume = run_dir.has_checkpoint()
+            if not resume:
+                log.info("%s has no checkpoint yet: training it from the start", run_dir.path)
+        else:
+            if not args.recipe:
+                raise RecipeError("give a recipe file or --resume RUN_DIR")
+            recipe = load_recipe(args.recipe, args.overrides)
+            run_dir = RunDir.for_recipe(recipe)
+            resume = False
+            if run_dir.path.is_dir():  # a second writer stops before the build below
+                run_dir.check_new()  # a run there is refused without a trace left
+                held.enter_context(run_lock(run_dir.path))
+        from gcnt.rl.loop import prepare, train
 
-    # robots, env and networks are built (and bad input reported) before anything is written
-    prepared = prepare(recipe)
-    if not args.resume:
-        run_dir.create(recipe)
-    elif not resume:
-        aside = run_dir.set_aside_metrics()  # rows of the killed attempt, kept but not mixed in
-        if aside is not None:
-            log.info("metrics of the attempt without a checkpoint moved to %s", aside)
-    train(recipe, run_dir, resume=resume, prepared=prepared)
+        # robots, env and networks are built (and bad input reported) before anything is written
+        prepared = prepare(recipe, resume=resume)
+        held.enter_context(run_lock(run_dir.path))
+        if not args.resume:
+            run_dir.create(recipe)
+        elif not resume:
+            aside = run_dir.set_aside_metrics()  # rows of the killed attempt, kept but not mixed in
+            if aside is not None:
+                log.info("metrics of the attempt without a checkpoint moved to %s", aside)
+        train(recipe, run_dir, resume=resume, prepared=prepared)
     print(f"run directory: {run_dir.path}")
     return 0
 

@@ -4,7 +4,9 @@
 the recipe's algorithm (``gcnt.rl.algorithm``), then collects batches with a torchrl
 ``Collector`` and hands each to the algorithm, logging per-robot episode returns and the
 algorithm's losses, checkpointing atomically (with RNG state), evaluating and rendering videos.
-``train(recipe, run, resume=True)`` continues from the run's last checkpoint.
+``train(recipe, run, resume=True)`` continues from the run's last checkpoint. Inside
+:func:`gcnt.rl.stop.stop_on_signals` (as ``gcnt train`` runs it), SIGTERM, SIGINT and SIGUSR2 stop
+the run after the current batch with a checkpoint (:func:`stop_here`).
 
 Every collected environment step is counted (``env_steps``), over all robots.
 """
@@ -19,6 +21,7 @@ from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 import torch
@@ -31,6 +34,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from gcnt import keys as K
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl import init_from, stop
 from gcnt.rl.accelerate import collector_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
@@ -113,9 +117,11 @@ class Prepared:
     algo: Algorithm
 
 
-def prepare(recipe: Recipe) -> Prepared:
+def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
     """Seed, then build the robots, the benchmark's env and the algorithm (bad input fails
-    here, before anything is written); the derived sizes go to ``recipe.resolved``."""
+    here, before anything is written); the derived sizes go to ``recipe.resolved``. A new run
+    with ``init_from`` takes over that run's trained networks here (``gcnt.rl.init_from``);
+    ``resume``: the run continues its own checkpoint instead."""
     check_logger(recipe)
     check_network(recipe)
     seed_everything(recipe.seed)
@@ -125,6 +131,7 @@ def prepare(recipe: Recipe) -> Prepared:
     env = algo_cls.make_train_env(recipe, robots)
     try:
         algo = algo_cls(recipe, env, robots)
+        start = init_from.origin(recipe, algo, resume=resume)
     except BaseException as e:
         env.close()
         if type(e) is ValueError:  # what the network builder says about the robots it was given
@@ -132,7 +139,7 @@ def prepare(recipe: Recipe) -> Prepared:
                 f"network {recipe.network.name!r} on {benchmark_of(recipe).name} robots: {e}"
             ) from None
         raise
-    recipe.resolved = algo.resolved()
+    recipe.resolved = {**algo.resolved(), **start}
     return Prepared(robots, env, algo)
 
 
@@ -143,7 +150,7 @@ def train(
 
     ``prepared`` is :func:`prepare`'s result for this recipe (built here when not given).
     """
-    prepared = prepared or prepare(recipe)
+    prepared = prepared or prepare(recipe, resume=resume)
     robots, env, algo = prepared.robots, prepared.env, prepared.algo
     t0 = time.perf_counter()
 
@@ -174,6 +181,8 @@ def train(
                         algo.process(data, env_steps), env_steps,
                     )  # fmt: skip
                     bar.update(data.numel())  # 100% once the last batch's update is done
+                    if stop.requested():
+                        stop_here(recipe, [run], [algo], [logger], [cadence], [env_steps])
                     if multi:
                         collector.update_policy_weights_()
                     if row is not None:
@@ -300,6 +309,7 @@ class Cadence:
         self.total = recipe.collector.total_frames
         self.next_log = _next_multiple(env_steps, recipe.logger.log_interval)
         self.next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
+        self.checkpointed = env_steps  # the env steps of the run's last checkpoint
         self.next_eval = (
             _next_multiple(env_steps, recipe.eval.interval) if recipe.eval.interval else None
         )
@@ -324,11 +334,41 @@ class Cadence:
             self.next_log = _next_multiple(env_steps, recipe.logger.log_interval)
         if env_steps >= self.next_ckpt or last:
             _checkpoint(run, algo, env_steps)
+            self.checkpointed = env_steps
             self.next_ckpt = _next_multiple(env_steps, recipe.checkpoint_interval)
         if self.next_eval is not None and env_steps >= self.next_eval and not last:
             _evaluate(recipe, run, algo, logger, env_steps)
             self.next_eval = _next_multiple(env_steps, recipe.eval.interval)
         return row
+
+
+def checkpoint_since(run: RunDir, algo: Algorithm, cadence: Cadence, env_steps: int) -> None:
+    """Checkpoint at ``env_steps`` unless the run's last checkpoint is there already."""
+    if cadence.checkpointed != env_steps:
+        _checkpoint(run, algo, env_steps)
+        cadence.checkpointed = env_steps
+
+
+def stop_here(
+    recipe: Recipe | list[Recipe],
+    runs: list[RunDir],
+    algos: list[Algorithm],
+    loggers: list,
+    cadences: list[Cadence],
+    env_steps: list[int],
+) -> NoReturn:
+    """A stop was requested (:mod:`gcnt.rl.stop`): checkpoint each run where its last
+    checkpoint is older, close its logger, raise TrainingStopped. ``recipe``: one per run, or
+    one for all. Called between batches, where the learner's state is whole."""
+    recipes = recipe if isinstance(recipe, list) else [recipe] * len(runs)
+    for r, run, algo, logger, cadence, steps in zip(
+        recipes, runs, algos, loggers, cadences, env_steps, strict=True
+    ):
+        checkpoint_since(run, algo, cadence, steps)
+        finish(r, run, algo, logger, steps, evaluate_now=False)
+    raise stop.TrainingStopped(
+        stop.requested() or "a stop request", [str(r.path) for r in runs], list(env_steps)
+    )
 
 
 def finish(

@@ -25,18 +25,22 @@ from pathlib import Path
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt.recipes import Recipe, RecipeError
+from gcnt.rl import stop
 from gcnt.rl.loop import (
     Cadence,
     Prepared,
     TrainStats,
     after_update,
+    checkpoint_since,
     finish,
     log_summary,
     make_collector,
     prepare,
     progress_bar,
+    stop_here,
 )
 from gcnt.rl.run_dir import RunDir, make_logger
+from gcnt.rl.run_lock import run_locks
 from gcnt.rl.td3.stacked import SeedRNG, StackedTD3
 
 log = logging.getLogger(__name__)
@@ -99,13 +103,22 @@ def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
         paths = [run.path.resolve() for run in runs]
         if len(set(paths)) < len(paths):
             raise RecipeError("--seeds: two seeds would share one run directory")
-        for run, recipe in zip(runs, recipes, strict=True):
-            run.create(recipe)
+        held = run_locks([run.path for run in runs])  # one writer per run directory
+        held.__enter__()
+        try:
+            for run, recipe in zip(runs, recipes, strict=True):
+                run.create(recipe)
+        except BaseException:
+            held.__exit__(None, None, None)
+            raise
     except BaseException:
         for p in prepared:
             p.env.close()
         raise
-    _lockstep(recipes, runs, prepared, stacked, rng)
+    try:
+        _lockstep(recipes, runs, prepared, stacked, rng)
+    finally:
+        held.__exit__(None, None, None)
     return runs
 
 
@@ -151,6 +164,11 @@ def _lockstep(
                             )  # fmt: skip
                     # 100% once the last batch's update is done
                     bar.update(sum(d.numel() for d in datas))
+                    if stop.requested():  # each seed checkpointed with its own random state
+                        for i in range(n):
+                            with rng.active(i):
+                                checkpoint_since(runs[i], algos[i], cadences[i], env_steps[i])
+                        stop_here(recipes, runs, algos, loggers, cadences, env_steps)
             finally:
                 bar.close()
     finally:

@@ -1,0 +1,170 @@
+"""One writer per run directory (``gcnt.rl.run_lock``) and stopping on a signal with a checkpoint
+(``gcnt.rl.stop``): a second ``gcnt train`` on a run in progress stops at once in one line naming
+the holder; a dead holder leaves no lock; SIGTERM / SIGUSR2 checkpoint, exit 75, and the run
+resumes from there."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from gcnt.cli import main as gcnt
+from gcnt.rl.run_dir import RunDir
+from gcnt.rl.run_lock import RunBusyError, holder, run_lock
+from gcnt.rl.stop import EXIT_STOPPED
+
+ROOT = Path(__file__).parents[1]
+
+#: a tiny TD3 run that would train for long: stopped by a signal long before its end, and
+#: before its first scheduled checkpoint
+LONG_RECIPE = """\
+base: {root}/recipes/smpenv/_td3.yaml
+task: tiny
+env: {{robots: [hopper_3], max_episode_steps: 15}}
+collector: {{total_frames: 1000000}}
+td3: {{init_random_frames: 20, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
+      updates_per_step: 0.25, schedule: mixed}}
+network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
+logger: {{backend: none, progress: false, log_interval: 20}}
+eval: {{episodes: 1, interval: 0}}
+checkpoint_interval: 1000000
+"""
+
+HOLD = """
+import sys, time
+from gcnt.rl.run_lock import run_lock
+with run_lock(sys.argv[1]):
+    print("held", flush=True)
+    time.sleep(120)
+"""
+
+
+def _holding_process(run: Path) -> subprocess.Popen:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(run)], stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_writer_is_refused_and_a_dead_holder_leaves_no_lock(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    proc = _holding_process(run)
+    try:
+        who = holder(run)
+        assert who is not None and who.pid == proc.pid and who.host == socket.gethostname()
+        with pytest.raises(RunBusyError, match=rf"{run} is being trained by process {proc.pid} on"):
+            with run_lock(run):
+                pass
+    finally:
+        proc.kill()  # no clean-up code runs: the kernel drops the lock
+        proc.wait()
+    assert holder(run) is None
+    with run_lock(run):
+        # asking about a lock this process holds must not release it (POSIX locks drop on any
+        # close of the file by their process)
+        assert holder(run).pid == os.getpid()
+        probe = subprocess.run(
+            [sys.executable, "-c", "import sys; from gcnt.rl.run_lock import holder; "
+             "print(holder(sys.argv[1]).pid)", str(run)],  # fmt: skip
+            capture_output=True, text=True, check=True,
+        )  # fmt: skip
+        assert probe.stdout.strip() == str(os.getpid())
+    assert holder(run) is None
+
+
+def test_a_stale_holder_record_without_locking_is_taken_over(tmp_path: Path, monkeypatch) -> None:
+    """Where the file system cannot lock, a holder on this host whose pid is gone is stale."""
+    import errno
+    import fcntl
+
+    def no_locks(*_args):
+        raise OSError(errno.ENOLCK, "no locks available")
+
+    run = tmp_path / "run"
+    run.mkdir()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (run / ".lock").write_text(f"{socket.gethostname()} {dead.pid} 2026-01-01T00:00:00\n")
+    monkeypatch.setattr(fcntl, "lockf", no_locks)
+    assert holder(run) is None
+    (run / ".lock").write_text("other-node 1 2026-01-01T00:00:00\n")
+    with pytest.raises(RunBusyError, match="process 1 on other-node"):
+        with run_lock(run):
+            pass
+
+
+def _start_training(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, Path]:
+    recipe = tmp_path / "long.yaml"
+    recipe.write_text(LONG_RECIPE.format(root=ROOT))
+    run = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcnt.cli", "train", str(recipe), f"run_dir={run}", *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    return proc, run
+
+
+def _wait_for_metrics(paths: list[Path], proc: subprocess.Popen, timeout: float = 600) -> None:
+    t0 = time.monotonic()
+    while not all(p.is_file() and p.stat().st_size for p in paths):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() - t0 < timeout, "training did not start"
+        time.sleep(0.2)
+
+
+@pytest.mark.slow
+def test_sigterm_checkpoints_exits_75_and_a_second_writer_stops_at_once(
+    tmp_path: Path, capsys
+) -> None:
+    proc, run = _start_training(tmp_path)
+    try:
+        _wait_for_metrics([run / "metrics.jsonl"], proc)
+        assert not RunDir(run).has_checkpoint()  # the first scheduled one is far away
+        # a second writer: one line naming the holder, before any work
+        capsys.readouterr()
+        t0 = time.monotonic()
+        assert gcnt(["train", "--resume", str(run)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert time.monotonic() - t0 < 5
+        assert len(err) == 1 and f"is being trained by process {proc.pid}" in err[0], err
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == EXIT_STOPPED, stderr
+    assert "Traceback" not in stderr
+    (line,) = [x for x in stderr.splitlines() if x.startswith("gcnt train:")]
+    assert "stopped by SIGTERM" in line and f"gcnt train --resume {run}" in line
+    steps = RunDir(run).load_checkpoint()["env_steps"]
+    assert 0 < steps < 1_000_000
+    assert holder(run) is None
+    assert gcnt(["train", "--resume", str(run), f"collector.total_frames={steps + 10}"]) == 0
+    assert RunDir(run).load_checkpoint()["env_steps"] >= steps + 10
+
+
+@pytest.mark.slow
+def test_sigusr2_checkpoints_every_stacked_seed(tmp_path: Path) -> None:
+    proc, run = _start_training(tmp_path, "--seeds", "0,1")
+    seeds = [run / "seed0", run / "seed1"]
+    try:
+        _wait_for_metrics([s / "metrics.jsonl" for s in seeds], proc)
+        assert all(holder(s).pid == proc.pid for s in seeds)
+        proc.send_signal(signal.SIGUSR2)
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == EXIT_STOPPED, stderr
+    assert "stopped by SIGUSR2" in stderr and "Traceback" not in stderr
+    steps = [RunDir(s).load_checkpoint()["env_steps"] for s in seeds]
+    assert steps[0] == steps[1] > 0
+    assert all(holder(s) is None for s in seeds)
