@@ -21,7 +21,7 @@ from gcnt.recipes import load_recipe, recipe_from_dict
 from gcnt.rl.loop import prepare
 from gcnt.rl.ppo.config import PPOConfig
 from gcnt.rl.ppo.learner import PPO, NormalizedPolicy, lr_factor, make_gae
-from gcnt.rl.run_dir import RunDir
+from gcnt.rl.run_dir import RunDir, plain_state
 
 TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
 
@@ -261,9 +261,9 @@ def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp
     list(a.algo.process(data1, 80))
     state = a.algo.state_dict()
     path = tmp_path / "state.pt"
-    torch.save(state, path)
+    torch.save(plain_state(state), path)  # as a checkpoint stores it: no NumPy objects
     b = prepare(tiny_recipe(tmp_path / "b"))
-    b.algo.load_state_dict(torch.load(path, weights_only=False))
+    b.algo.load_state_dict(torch.load(path, weights_only=True))
     assert b.algo.learner.iteration == 1 and b.algo.learner.lr_now() == a.algo.learner.lr_now()
     data2 = rollout(a)  # fresh episodes (a rollout starts with a reset), as after a resume
     a.algo.scaler.ret[:] = 0.0  # episode lengths restart with the env (StepCounter)

@@ -188,7 +188,7 @@ def test_train_two_seeds_stacked_matches_each_seed_trained_alone(tmp_path, capsy
         run = tmp_path / "both" / f"seed{seed}"
         assert f"run directory: {run}" in out
         assert (run / "checkpoints/last.pt").exists() and (run / "eval/step90.json").exists()
-        state = torch.load(run / "checkpoints/last.pt", weights_only=False)
+        state = torch.load(run / "checkpoints/last.pt", weights_only=True)
         assert state["env_steps"] == 90 and state["learner"]["updates"] == 10
         assert load_recipe(run / "recipe.yaml").seed == seed
     assert gcnt(["train", str(QUICK), *TINY, f"run_dir={tmp_path / 'alone'}", "seed=1"]) == 0

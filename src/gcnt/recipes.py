@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import os
+import stat
 import types
 import typing
 from dataclasses import dataclass, field
@@ -193,6 +195,10 @@ class Recipe:
     device: str = "cpu"
     #: run directory (default: runs/<task>/<algo>-<network>/seed<seed>)
     run_dir: str | None = None
+    #: a trained run directory to start from (fine-tuning): its networks' weights and, for PPO,
+    #: observation statistics; fresh optimisers, replay and counters (``gcnt.rl.init_from``).
+    #: Same algorithm, benchmark and network sizes; unset: networks from scratch
+    init_from: str | None = None
     #: environment steps between checkpoints
     checkpoint_interval: int = 100_000
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -436,7 +442,7 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
         raise RecipeError(f"override {override!r} must look like section.key=value")
     key, raw = override.split("=", 1)
     try:
-        value = yaml.safe_load(raw) if raw != "" else ""
+        value = yaml.load(raw, Loader=RecipeLoader) if raw != "" else ""
     except yaml.YAMLError as e:
         raise RecipeError(
             f"override {override!r}: the value is not valid YAML ({_yaml_problem(e)})"
@@ -469,23 +475,114 @@ def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """A recipe file's mapping, with ``base: other.yaml`` (relative to the file) merged under it."""
-    if path.resolve() in chain:
-        raise RecipeError(f"{path}: recipe bases form a cycle: {' -> '.join(map(str, chain))}")
+#: the largest recipe file read (a recipe is a few kilobytes)
+MAX_RECIPE_BYTES = 1 << 20
+#: the most YAML nodes a recipe document may hold once its aliases are expanded
+MAX_RECIPE_NODES = 100_000
+
+
+class RecipeLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` for recipes and overrides. Anchors and aliases are allowed (PyYAML's
+    dumper writes them for repeated values), but a document whose aliases would expand beyond
+    :data:`MAX_RECIPE_NODES` nodes, or refer to themselves, is refused as soon as it is composed,
+    before any object is built: an alias bomb costs nothing."""
+
+    def compose_document(self):
+        node = super().compose_document()
+        _expanded_size(node, {}, set())
+        return node
+
+
+def _expanded_size(node: yaml.Node, sizes: dict[int, int], open_: set[int]) -> int:
+    """The number of nodes of ``node`` with every alias expanded (each shared node counted once
+    per use, computed once); a yaml.MarkedYAMLError past :data:`MAX_RECIPE_NODES`."""
+    key = id(node)
+    if key in sizes:
+        return sizes[key]
+    if key in open_:
+        raise yaml.MarkedYAMLError(
+            problem="an alias refers to the value that contains it", problem_mark=node.start_mark
+        )
+    open_.add(key)
+    if isinstance(node, yaml.SequenceNode):
+        size = 1 + sum(_expanded_size(c, sizes, open_) for c in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        size = 1 + sum(
+            _expanded_size(k, sizes, open_) + _expanded_size(v, sizes, open_) for k, v in node.value
+        )
+    else:
+        size = 1
+    open_.discard(key)
+    if size > MAX_RECIPE_NODES:
+        raise yaml.MarkedYAMLError(
+            problem=f"its aliases expand to more than {MAX_RECIPE_NODES} values",
+            problem_mark=node.start_mark,
+        )
+    sizes[key] = size
+    return size
+
+
+def _recipe_keys() -> set[str]:
+    """The keys a recipe file's top level may hold."""
+    return {f.name for f in dataclasses.fields(Recipe)} - set(_INTERNAL) | {
+        *algorithm_names(),
+        "base",
+    }
+
+
+def _read_text(path: Path) -> str:
+    """A recipe file's text. It must be a regular file (not a device, FIFO or directory) of at
+    most :data:`MAX_RECIPE_BYTES`; the error names the file and never quotes it."""
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        # O_NONBLOCK: opening a FIFO does not wait for a writer; fstat then refuses it
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            os.close(fd)
+            kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
+            raise RecipeError(f"{path}: {kind}; a recipe is a YAML file")
+        with open(fd, "rb") as f:
+            raw = f.read(MAX_RECIPE_BYTES + 1)
     except OSError as e:
-        raise RecipeError(f"{path}: cannot read recipe ({e.strerror})") from e
+        raise RecipeError(f"{path}: cannot read recipe ({e.strerror})") from None
+    if len(raw) > MAX_RECIPE_BYTES:
+        raise RecipeError(
+            f"{path}: larger than {MAX_RECIPE_BYTES // 1024} KiB; not a recipe (a recipe is YAML "
+            "of a few kilobytes)"
+        )
+    try:
+        return raw.decode("utf-8")
     except UnicodeDecodeError:
         raise RecipeError(f"{path}: not a text file; a recipe is YAML") from None
+
+
+def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """A recipe file's mapping, with ``base: other.yaml`` (relative to the file) merged under it.
+    A file that is not a recipe (none of its top-level keys is a recipe key) is refused without
+    quoting it: a ``base:`` may name any file."""
+    if path.resolve() in chain:
+        raise RecipeError(f"{path}: recipe bases form a cycle: {' -> '.join(map(str, chain))}")
+    text = _read_text(path)
+    try:
+        data = yaml.load(text, Loader=RecipeLoader) or {}
     except yaml.YAMLError as e:
         raise RecipeError(f"{path}: not valid YAML ({_yaml_problem(e)})") from None
+    except RecursionError:
+        raise RecipeError(f"{path}: nested too deeply; not a recipe") from None
     if not isinstance(data, dict):
         raise RecipeError(f"{path}: a recipe must be a mapping of sections")
+    if data and not any(isinstance(k, str) and k in _recipe_keys() for k in data):
+        raise RecipeError(
+            f"{path}: not a recipe (none of its top-level keys is a recipe section or setting)"
+        )
     base = data.pop("base", None)
     if base is None:
         return data
+    if not isinstance(base, str) or not base.strip():
+        raise RecipeError(
+            f"{path}: base: expected the path of a recipe file, got "
+            f"{'an empty string' if isinstance(base, str) else type(base).__name__}"
+        )
     return _merge(_read_yaml(path.parent / base, (*chain, path.resolve())), data)
 
 

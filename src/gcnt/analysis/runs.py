@@ -248,21 +248,17 @@ class Run:
 
     # --- metrics
     def metrics(self) -> list[dict[str, Any]]:
-        """Rows of ``metrics.jsonl``, ``null`` read as NaN (a torn last line, from a run killed
-        mid-write, is skipped)."""
-        path = self.path / METRICS_FILE
-        if not path.exists():
-            return []
-        rows = []
-        for line in path.read_text().splitlines():
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(row, dict) and isinstance(row.get("env_steps"), int | float):
-                # ``null`` is a non-finite value the run logged (strict JSON has no NaN)
-                rows.append({k: math.nan if v is None else v for k, v in row.items()})
-        return rows
+        """Rows of ``metrics.jsonl`` with a numeric ``env_steps``, ``null`` read as NaN
+        (:func:`gcnt.rl.metrics_log.read_metrics`: an incomplete last line, from a run stopped
+        mid-write, is dropped with a warning; a damaged line before it is an AnalysisError
+        naming the file and line)."""
+        from gcnt.rl.metrics_log import MetricsFileError, read_metrics
+
+        try:
+            rows = read_metrics(self.path / METRICS_FILE)
+        except MetricsFileError as e:
+            raise AnalysisError(str(e)) from None
+        return [r for r in rows if isinstance(r.get("env_steps"), int | float)]
 
     def last_env_steps(self) -> int:
         rows = self.metrics()

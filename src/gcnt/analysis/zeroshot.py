@@ -55,10 +55,18 @@ def seed_score(
             e.env_steps,
             deterministic is not None and e.deterministic == deterministic,
             e.episodes,
-            e.matches("test"),
+            _test_eval_rank(e),
         ),
     )
     return score(best.robots[robot]), best
+
+
+def _test_eval_rank(e: EvalRecord) -> int:
+    """2 for a ``gcnt eval --robots test`` evaluation, 1 for another evaluation of the test
+    robots (training's own, when its one robot spec is a ``Benchmark:test`` split), else 0."""
+    if e.label and (e.specs == ["test"] or e.label == "test"):
+        return 2
+    return int(e.matches("test"))
 
 
 def test_robots(runs: Sequence[Run]) -> list[str]:

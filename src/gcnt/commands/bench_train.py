@@ -14,6 +14,13 @@ steps/s it could absorb (frames per iteration / update time) and mini-batch upda
 train`` for ``--iterations`` iterations end to end (the first one left out as warm-up): env steps/s
 overall and in collection alone. The ratio of end-to-end to bare env steps/s is the share of the
 time spent updating.
+
+Beside each bare rate: the update's arithmetic, the floating-point operations of its matrix
+products (torch's ``FlopCounterMode`` over one update, or one PPO iteration, counted during the
+warm-up), the GFLOP/s the bare update achieves with them, and that as a share of the machine's
+matmul peak measured in the same run (:func:`matmul_peak_gflops`: a large float32 matrix product
+on torch's threads as configured). A small share means the update is bound by per-call
+overhead, not by arithmetic.
 """
 
 from __future__ import annotations
@@ -48,8 +55,68 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
-def bare_update_rate(recipe, n_updates: int) -> float:
-    """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it."""
+def matmul_peak_gflops(size: int = 1024, repeats: int = 5) -> float:
+    """GFLOP/s of the best of ``repeats`` float32 ``size`` × ``size`` matrix products on torch's
+    threads as configured: the arithmetic limit the updates are measured against."""
+    import torch
+
+    a = torch.randn(size, size)
+    b = torch.randn(size, size)
+    torch.mm(a, b)  # warm-up
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        torch.mm(a, b)
+        best = min(best, time.perf_counter() - t0)
+    return 2 * size**3 / best / 1e9
+
+
+def count_flops(fn) -> tuple[int, object]:
+    """Floating-point operations of the matrix products ``fn()`` runs (torch's
+    ``FlopCounterMode``: matmul, linear, batched and attention products; elementwise work is not
+    counted), and what ``fn`` returned."""
+    import torch
+    from torch.utils import flop_counter as fc
+
+    aten = torch.ops.aten
+    # torch's counter has formulas for the GPU attention kernels only; the CPU kernel does the
+    # same products
+    cpu_attention = {
+        aten._scaled_dot_product_flash_attention_for_cpu: lambda q, k, v, *_, **__: (
+            fc.sdpa_flop_count(q, k, v)
+        ),
+        aten._scaled_dot_product_flash_attention_for_cpu_backward: lambda g, q, k, v, *_, **__: (
+            fc.sdpa_backward_flop_count(g, q, k, v)
+        ),
+    }
+    counter = fc.FlopCounterMode(display=False, custom_mapping=cpu_attention)
+    with counter:
+        out = fn()
+    return counter.get_total_flops(), out
+
+
+def arithmetic(flops_per_update: float, updates_per_s: float, peak: float) -> dict:
+    """The arithmetic figures of an update rate: FLOPs per update, GFLOP/s, share of ``peak``."""
+    gflops = flops_per_update * updates_per_s / 1e9
+    return {
+        "flops_per_update": flops_per_update,
+        "gflops_per_s": gflops,
+        "share_of_peak": gflops / peak,
+    }
+
+
+def arithmetic_line(a: dict, peak: float, unit: str = "update") -> str:
+    return (
+        f"       {a['flops_per_update'] / 1e6:,.1f} MFLOP per {unit} in matrix products: "
+        f"{a['gflops_per_s']:.2f} GFLOP/s = {100 * a['share_of_peak']:.1f}% of the "
+        f"{peak:.1f} GFLOP/s matmul peak"
+    )
+
+
+def bare_update_rate(recipe, n_updates: int) -> dict:
+    """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it, and the
+    FLOPs per update (counted over one ``policy_delay`` period of the warm-up: a critic step
+    each update, an actor step once)."""
     from gcnt.rl.factories import make_env, train_robots
     from gcnt.rl.td3 import replay as rb
     from gcnt.rl.td3.learner import TD3Learner
@@ -64,12 +131,16 @@ def bare_update_rate(recipe, n_updates: int) -> float:
     batch = replay.sample_mixed() if c.schedule == "mixed" else replay.sample_robot(0)
     learner = TD3Learner(recipe, env)
     env.close()
-    for _ in range(3):
-        learner.update(batch)
+    learner.update(batch)
+    period = c.policy_delay
+    flops, _ = count_flops(lambda: [learner.update(batch) for _ in range(period)])
     t0 = time.perf_counter()
     for _ in range(n_updates):
         learner.update(batch)
-    return n_updates / (time.perf_counter() - t0)
+    return {
+        "updates_per_s": n_updates / (time.perf_counter() - t0),
+        "flops_per_update": flops / period,
+    }
 
 
 def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
@@ -239,6 +310,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
 
     import torch
 
+    peak = matmul_peak_gflops()
     out = {
         "recipe": args.recipe,
         "algo": "td3",
@@ -246,16 +318,20 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         "batch_size": recipe.td3.batch_size,
         "updates_per_step": recipe.td3.updates_per_step,
         "threads": torch.get_num_threads(),
+        "matmul_peak_gflops": peak,
         "replay_sample_ms": replay_sample_ms(recipe),
         "schedules": {},
     }
     for schedule in ("paper", "mixed"):
         r = copy.deepcopy(recipe)
         r.td3.schedule = schedule
-        bare = bare_update_rate(r, args.updates)
+        measured = bare_update_rate(r, args.updates)
+        bare = measured["updates_per_s"]
         e2e = end_to_end_rate(r, args.warmup, args.steps)
         out["schedules"][schedule] = {
             "bare_updates_per_s": bare,
+            "bare_update_ms": 1e3 / bare,
+            "arithmetic": arithmetic(measured["flops_per_update"], bare, peak),
             "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
             "end_to_end_updates_per_s": e2e["updates_per_s"],
             "updates": e2e["updates"],
@@ -271,6 +347,11 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         f"{rs['ensemble']:.2f} ms, one storage {rs['one_storage']:.2f} ms"
     )
     for schedule, row in out["schedules"].items():
+        print(
+            f"{schedule:6s} bare TD3 update {row['bare_updates_per_s']:8.2f} updates/s "
+            f"({row['bare_update_ms']:.1f} ms, {out['threads']} torch threads)"
+        )
+        print(arithmetic_line(row["arithmetic"], peak))
         if not row["updates"]:
             print(
                 f"{schedule:6s} no update in the {args.steps} timed env steps (the paper schedule "
@@ -278,10 +359,9 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             )
             continue
         print(
-            f"{schedule:6s} bare TD3 update {row['bare_updates_per_s']:8.2f} updates/s; end to "
-            f"end {row['end_to_end_env_steps_per_s']:8.2f} env steps/s, "
+            f"{schedule:6s} end to end {row['end_to_end_env_steps_per_s']:8.2f} env steps/s, "
             f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates); "
-            f"ratio {row['ratio']:.3f}"
+            f"ratio to the bare update {row['ratio']:.3f}"
         )
     return 0
 
@@ -298,13 +378,13 @@ def ppo_bare_rate(recipe) -> dict:
     algo, o = prep.algo, recipe.algo_config
     with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
         data = prep.env.rollout(o.steps_per_env, algo.policy(), break_when_any_done=False)
-    times, updates = [], 0
-    for _ in range(2):  # the first warms up
-        t0 = time.perf_counter()
-        updates = len(list(algo.process(data.clone(), data.numel())))
-        times.append(time.perf_counter() - t0)
+    # the warm-up iteration counts the FLOPs
+    flops, _ = count_flops(lambda: list(algo.process(data.clone(), data.numel())))
+    t0 = time.perf_counter()
+    updates = len(list(algo.process(data.clone(), data.numel())))
+    update_s = time.perf_counter() - t0
     prep.env.close()
-    return {"frames": data.numel(), "update_s": times[-1], "updates": updates}
+    return {"frames": data.numel(), "update_s": update_s, "updates": updates, "flops": flops}
 
 
 def ppo_end_to_end(recipe, iterations: int) -> dict:
@@ -324,6 +404,7 @@ def ppo_end_to_end(recipe, iterations: int) -> dict:
 def run_ppo(args: argparse.Namespace, recipe) -> int:
     import torch
 
+    peak = matmul_peak_gflops()
     bare = ppo_bare_rate(recipe)
     e2e = ppo_end_to_end(recipe, args.iterations)
     bare_steps = bare["frames"] / bare["update_s"]
@@ -337,6 +418,9 @@ def run_ppo(args: argparse.Namespace, recipe) -> int:
         "bare_update_s": bare["update_s"],
         "bare_updates_per_s": bare["updates"] / bare["update_s"],
         "bare_env_steps_per_s": bare_steps,
+        "matmul_peak_gflops": peak,
+        # one update = the whole iteration (GAE, every epoch's mini-batch steps)
+        "arithmetic": arithmetic(bare["flops"], 1 / bare["update_s"], peak),
         "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
         "collect_env_steps_per_s": e2e["collect_env_steps_per_s"],
         "end_to_end_update_s": e2e["update_s"],
@@ -348,8 +432,9 @@ def run_ppo(args: argparse.Namespace, recipe) -> int:
         print(
             f"bare PPO update:   {bare['update_s']:8.2f} s per iteration of {bare['frames']} "
             f"frames = {bare_steps:.0f} env steps/s, {out['bare_updates_per_s']:.2f} "
-            f"mini-batch updates/s ({recipe.network.name})"
+            f"mini-batch updates/s ({recipe.network.name}, {out['threads']} torch threads)"
         )
+        print(arithmetic_line(out["arithmetic"], peak, "iteration"))
         print(
             f"end to end:        {e2e['env_steps_per_s']:8.2f} env steps/s "
             f"(collection alone {e2e['collect_env_steps_per_s']:.0f}/s, update "

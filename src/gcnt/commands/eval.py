@@ -5,12 +5,15 @@ Actions follow the run's recipe (``eval.deterministic``: the policy's mean actio
 actions as in ModuMorph's PPO protocol) unless a flag says otherwise; the episodes default to
 100 deterministic or 32 sampled ones per robot. Every evaluation is kept:
 ``eval/<robots>-step<N>-<det|stoch>-seed<S>.json`` in the run directory says what was evaluated
-(robots, episodes, seed, deterministic or sampled actions).
+(robots, episodes, seed, deterministic or sampled actions); ``<robots>`` carries a short hash of
+the exact list where the name alone would be ambiguous (robot files, replaced characters). A run
+directory that cannot be written (read-only, full) still lets ``--json PATH`` keep the result.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import logging
 import re
 from pathlib import Path
@@ -59,9 +62,21 @@ def default_episodes(deterministic: bool) -> int:
 
 
 def _label(specs: list[str]) -> str:
+    """The evaluation file's name for robot ``specs``: the specs themselves (robot names,
+    ``Benchmark:split`` as ``Benchmark-split``) where that is exact; with a short hash of the
+    exact list appended where the name lost something (a file's folder, a character replaced,
+    a long list cut), so that different robot sets never share a file (``"a b.xml"`` and
+    ``a_b.xml``)."""
     text = "+".join(Path(s).stem if s.endswith(".xml") else s for s in specs)
-    text = re.sub(r"[^A-Za-z0-9_.+-]+", "_", text.replace(":", "-"))
-    return text[:80] or "robots"
+    label = re.sub(r"[^A-Za-z0-9_.+-]+", "_", text.replace(":", "-"))[:80] or "robots"
+    exact = all(
+        re.fullmatch(r"[A-Za-z0-9_.+-]+(:[A-Za-z0-9_.+-]+)?", s) and not s.endswith(".xml")
+        for s in specs
+    )
+    if exact and len(text) <= 80:
+        return label
+    digest = hashlib.sha1("\n".join(specs).encode()).hexdigest()[:8]
+    return f"{label}-{digest}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError
     from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
     from gcnt.rl.loop import check_network
-    from gcnt.rl.run_dir import CheckpointError, RunDir
+    from gcnt.rl.run_dir import CheckpointError, RunDir, RunDirError
 
     run_dir = RunDir(existing_path(args.run_dir))
     recipe = run_dir.load_recipe()
@@ -112,10 +127,18 @@ def run(args: argparse.Namespace) -> int:
     }
     mode = "det" if deterministic else "stoch"
     name = f"{_label(args.robots)}-step{state['env_steps']}-{mode}-seed{args.seed}.json"
-    out = write_eval(run_dir.path / "eval" / name, results, state["env_steps"], meta)
+    steps = state["env_steps"]
+    failed = None
+    try:
+        print(f"written: {write_eval(run_dir.path / 'eval' / name, results, steps, meta)}")
+    except RunDirError as e:  # a read-only or full run directory: --json is still written
+        failed = e
     if args.json:
-        write_eval(Path(args.json), results, state["env_steps"], meta)
-    print(f"written: {out}")
+        print(f"written: {write_eval(Path(args.json), results, steps, meta)}")
+    if failed is not None and not args.json:
+        raise RunDirError(f"{failed}; the results are printed above (--json PATH keeps them)")
+    if failed is not None:
+        log.warning("%s; the results were written to %s only", failed, args.json)
     return 0
 
 

@@ -1,11 +1,14 @@
 """Range checks shared by the algorithm recipe sections (``td3:``, ``ppo:``).
 
-Imported by the recipe loader without torch, so keep this module free of heavy imports.
+Imported by the recipe loader without torch, so keep this module free of heavy imports (the
+memory checks import what they need when called).
 """
 
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 
 #: rule -> (whether a value breaks it, what the error says the value must be)
 _RULES = {
@@ -28,3 +31,66 @@ def check_range(config: object, rule: str, *keys: str) -> None:
         v = getattr(config, key)
         if breaks(v):
             raise ValueError(f"{key} {what}, got {v}")
+
+
+def memory_bytes(device: str = "cpu") -> int | None:
+    """The memory a run can use on ``device``: a CUDA device's total memory, else the
+    machine's physical memory, or the cgroup's limit where that is lower (a Slurm job, a
+    container); None where it cannot be read."""
+    if str(device).startswith("cuda"):
+        import torch
+
+        return int(torch.cuda.get_device_properties(torch.device(device)).total_memory)
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # not a POSIX system
+        return None
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+    except OSError:
+        limit = "max"
+    return min(total, int(limit)) if limit.isdigit() else total
+
+
+def check_memory(nbytes: int, device: str, what: str, fix: str) -> None:
+    """A RecipeError before anything runs when ``what`` needs ``nbytes`` bytes, more than
+    :func:`memory_bytes` of ``device`` (it could never fit); ``fix``: which setting to lower."""
+    from gcnt.recipes import RecipeError
+
+    have = memory_bytes(device)
+    if have is not None and nbytes > have:
+        raise RecipeError(
+            f"{what} would take {_bytes(nbytes)}, more than the {_bytes(have)} of memory on "
+            f"{'this machine' if not str(device).startswith('cuda') else device}; {fix}"
+        )
+
+
+def check_replay_memory(env, num_robots: int, capacity: int, device: str) -> None:
+    """The TD3 replay's storage (``num_robots`` x ``capacity`` transitions of ``env``'s
+    stored keys, allocated at its first batch) checked against :func:`memory_bytes`."""
+    from gcnt.rl.td3.replay import OPTIONAL_KEYS, STORED_KEYS
+
+    one = env.fake_tensordict().reshape(-1)[0]
+    present = set(one.keys(True, True))
+    per = sum(
+        one.get(k).numel() * one.get(k).element_size()
+        for k in (*STORED_KEYS, *OPTIONAL_KEYS)
+        if k in present
+    )
+    check_memory(
+        num_robots * capacity * per,
+        device,
+        f"the replay ({num_robots} robots x {capacity} transitions x {per} bytes)",
+        "lower td3.buffer_size_per_robot or td3.buffer_total_size",
+    )
+
+
+def _bytes(n: float) -> str:
+    """``n`` bytes in decimal units (``24.0 TB``)."""
+    if n < 1000:
+        return f"{int(n)} B"
+    for unit in ("KB", "MB", "GB"):
+        n /= 1000
+        if n < 1000:
+            return f"{n:.1f} {unit}"
+    return f"{n / 1000:.1f} TB"

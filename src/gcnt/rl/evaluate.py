@@ -8,6 +8,7 @@ over-represented. The env comes from the recipe's benchmark, the policy from its
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Sequence
@@ -22,7 +23,7 @@ from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.factories import base_env, make_env
-from gcnt.rl.run_dir import strict_json
+from gcnt.rl.run_dir import RunDirError, strict_json
 
 
 class PolicyMismatchError(ValueError):
@@ -157,14 +158,22 @@ def write_eval(
     path: Path, results: dict[str, dict], env_steps: int | None = None, meta: dict | None = None
 ) -> Path:
     """Write results as ``{"env_steps", **meta, "robots": {name: summary}}`` (atomically), as
-    strict JSON: a non-finite value (the standard error of one episode) is ``null``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
+    strict JSON: a non-finite value (the standard error of one episode) is ``null``. A failed
+    write (no permission, a full disk) leaves no temporary file and is a RunDirError naming
+    ``path``."""
     out = {"env_steps": env_steps, **(meta or {}), "robots": results}
     if results:
         out["over_robots"] = summarize_robots(results)
-    tmp.write_text(json.dumps(strict_json(out), indent=1, allow_nan=False))
-    tmp.replace(path)
+    text = json.dumps(strict_json(out), indent=1, allow_nan=False)
+    tmp = path.with_suffix(".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        tmp.replace(path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise RunDirError(f"{path}: cannot write the evaluation ({e.strerror or e})") from None
     return path
 
 

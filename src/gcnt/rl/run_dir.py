@@ -6,12 +6,13 @@ local record, and W&B (offline by default) or CSV logging mirrors it through tor
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
-import json
 import logging
-import math
 import os
 import random
+from collections import OrderedDict
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,13 @@ import numpy as np
 import torch
 
 from gcnt.recipes import Recipe, RecipeError, load_recipe, save_recipe
+from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
+    MetricsFileError,
+    metrics_line,
+    read_metrics,
+    read_metrics_row,
+    strict_json,
+)
 
 log = logging.getLogger(__name__)
 
@@ -71,11 +79,7 @@ class RunDir:
 
     def create(self, recipe: Recipe) -> None:
         """Make the directory and write the recipe; an existing run is never overwritten."""
-        if self.checkpoint_path.exists() or self.recipe_path.exists() or self.metrics_path.exists():
-            raise FileExistsError(
-                f"{self.path} already holds a run; continue it with `gcnt train --resume "
-                f"{self.path}` or choose another run_dir=..."
-            )
+        self.check_new()
         try:
             (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
             self.save_recipe(recipe)
@@ -84,6 +88,16 @@ class RunDir:
                 f"run_dir {self.path}: cannot create the run directory ({e.strerror or e}"
                 f"{': ' + str(e.filename) if e.filename else ''})"
             ) from None
+
+    def check_new(self) -> None:
+        """A FileExistsError (pointing to ``--resume``) where the directory holds a run."""
+        if self.checkpoint_path.exists() or self.recipe_path.exists() or self.metrics_path.exists():
+            raise FileExistsError(
+                f"{self.path} already holds a run; continue it with `gcnt train --resume "
+                f"{self.path}`"
+                + ("" if self.checkpoint_path.exists() else " (no checkpoint yet: from step 0)")
+                + " or choose another run_dir=..."
+            )
 
     def save_recipe(self, recipe: Recipe) -> None:
         """Write the resolved recipe (atomically: a killed run keeps the previous file)."""
@@ -100,15 +114,17 @@ class RunDir:
 
     # --- metrics
     def log_metrics(self, row: dict[str, Any]) -> None:
-        with self.metrics_path.open("a") as f:
+        with _writing(self.metrics_path, "the metrics"), self.metrics_path.open("a") as f:
             f.write(metrics_line(row))
 
     def read_metrics(self) -> list[dict[str, Any]]:
-        """The logged rows; ``null`` (a non-finite value) reads back as NaN."""
-        if not self.metrics_path.exists():
-            return []
-        lines = self.metrics_path.read_text().splitlines()
-        return [read_metrics_row(json.loads(line)) for line in lines if line]
+        """The logged rows (:func:`gcnt.rl.metrics_log.read_metrics`: ``null`` reads back as
+        NaN, an incomplete last line is dropped with a warning); a damaged line before it is a
+        RunDirError naming the file and line."""
+        try:
+            return read_metrics(self.metrics_path)
+        except MetricsFileError as e:
+            raise RunDirError(str(e)) from None
 
     def set_aside_metrics(self) -> Path | None:
         """Rename the metrics of a run restarted from scratch (killed before its first
@@ -122,63 +138,140 @@ class RunDir:
         return aside
 
     def truncate_metrics(self, env_steps: int) -> None:
-        """Drop lines logged after the checkpoint a resumed run starts from."""
+        """Drop lines logged after the checkpoint a resumed run starts from (and an incomplete
+        last line)."""
         rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
         tmp = self.metrics_path.with_suffix(".tmp")
-        tmp.write_text("".join(metrics_line(r) for r in rows))
-        os.replace(tmp, self.metrics_path)
+        with _writing(tmp, "the metrics"):
+            tmp.write_text("".join(metrics_line(r) for r in rows))
+            os.replace(tmp, self.metrics_path)
 
     # --- checkpoints
     def save_checkpoint(self, state: dict[str, Any]) -> None:
-        """Atomic write: a run killed while saving keeps its previous checkpoint."""
-        state = {**state, "rng": rng_state()}
+        """Atomic write: a run killed while saving keeps its previous checkpoint. NumPy arrays
+        and scalars are stored as tensors and Python numbers (:func:`plain_state`), so that
+        the file loads with ``torch.load(..., weights_only=True)``. A failed write (a full
+        disk, no permission) removes the temporary file, keeps the previous checkpoint and is
+        a RunDirError."""
+        state = plain_state({**state, "rng": rng_state()})
         tmp = self.checkpoint_path.with_suffix(".tmp")
-        tmp.parent.mkdir(parents=True, exist_ok=True)
-        torch.save(state, tmp)
-        os.replace(tmp, self.checkpoint_path)
+        kept = (
+            f"the last good checkpoint {self.checkpoint_path} was kept"
+            if self.checkpoint_path.exists()
+            else "no checkpoint was written yet"
+        )
+        try:
+            tmp.parent.mkdir(parents=True, exist_ok=True)
+            torch.save(state, tmp)
+            os.replace(tmp, self.checkpoint_path)
+        except (OSError, RuntimeError) as e:  # torch's zip writer reports a failed write as
+            # a RuntimeError ("PytorchStreamWriter failed writing file ...")
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
+            raise RunDirError(
+                f"{self.checkpoint_path}: cannot write the checkpoint ({_reason(e)}); {kept}"
+            ) from None
         log.debug("checkpoint at %s env steps", state.get("env_steps"))
 
     def has_checkpoint(self) -> bool:
         return self.checkpoint_path.exists()
 
     def load_checkpoint(self, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-        """The last checkpoint; a missing or unreadable file is a CheckpointError naming it."""
-        if not self.checkpoint_path.exists():
+        """The last checkpoint, read with ``torch.load(..., weights_only=True)``: tensors and
+        plain Python types only, so that a checkpoint from someone else cannot run code.
+        (Checkpoints written before :func:`plain_state` hold NumPy arrays: NumPy's own array
+        reconstruction, :data:`NUMPY_GLOBALS`, is allowed for them.) NumPy arrays saved by an
+        algorithm's state come back as tensors, NumPy scalars as Python numbers. A missing,
+        unreadable or refused file is a CheckpointError naming it."""
+        path = self.checkpoint_path
+        if not path.exists():
             raise CheckpointError(f"{self.path}: no checkpoint ({CHECKPOINT})")
         try:
-            state = torch.load(self.checkpoint_path, map_location=map_location, weights_only=False)
+            with torch.serialization.safe_globals(NUMPY_GLOBALS):
+                state = torch.load(path, map_location=map_location, weights_only=True)
         except Exception as e:  # torch raises many kinds for a truncated or foreign file
+            unsafe = _unsafe_globals(path)
+            if unsafe:
+                raise CheckpointError(
+                    f"{path}: refused: loading it would call {', '.join(unsafe[:3])}"
+                    f"{' and more' if len(unsafe) > 3 else ''}, which a gcnt checkpoint never "
+                    "holds (it could run code); only load checkpoints from people you trust, "
+                    "and only as gcnt wrote them"
+                ) from None
+            detail = str(e).splitlines()[0] if str(e) else "no detail"
             raise CheckpointError(
-                f"{self.checkpoint_path}: not a readable gcnt checkpoint ({type(e).__name__}: "
-                f"{str(e).splitlines()[0] if str(e) else 'no detail'})"
+                f"{path}: not a readable gcnt checkpoint ({type(e).__name__}: {detail})"
             ) from None
         if not isinstance(state, dict) or "env_steps" not in state:
-            raise CheckpointError(f"{self.checkpoint_path}: not a gcnt checkpoint")
+            raise CheckpointError(f"{path}: not a gcnt checkpoint")
         return state
 
 
-def strict_json(value: Any) -> Any:
-    """``value`` with every non-finite float (NaN, ±inf) replaced by None, so that ``json.dumps``
-    writes ``null`` (strict JSON has no ``NaN``); dicts, lists and tuples are copied."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
+#: NumPy's array and scalar reconstruction, allowed under ``weights_only=True`` for checkpoints
+#: that hold NumPy arrays: they build an array or scalar from a dtype and raw bytes; an object
+#: array's items go through the same restricted unpickler. Numeric dtypes only.
+_multiarray = np._core.multiarray if hasattr(np, "_core") else np.core.multiarray
+NUMPY_GLOBALS: list = [
+    # each under the module name of NumPy 2 and of NumPy 1 (numpy._core, numpy.core)
+    *(
+        (f, f"numpy.{core}.multiarray.{f.__name__}")
+        for f in (_multiarray._reconstruct, _multiarray.scalar)
+        for core in ("_core", "core")
+    ),
+    np.ndarray,
+    np.dtype,
+    *(
+        type(np.dtype(t))
+        for t in ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32",
+                  "uint64", "float16", "float32", "float64")
+    ),
+]  # fmt: skip
+
+
+def _unsafe_globals(path: Path) -> list[str]:
+    """The globals a checkpoint's pickle names beyond tensors, plain types and
+    :data:`NUMPY_GLOBALS` (read from its opcodes, nothing is run); empty when none or the file
+    is no readable torch checkpoint."""
+    allowed = {
+        g[1] if isinstance(g, tuple) else f"{g.__module__}.{g.__qualname__}" for g in NUMPY_GLOBALS
+    }
+    try:
+        names = torch.serialization.get_unsafe_globals_in_checkpoint(path)
+    except Exception:  # noqa: BLE001 - a truncated or foreign file: reported as unreadable
+        return []
+    return [n for n in names if n not in allowed]
+
+
+def plain_state(value: Any) -> Any:
+    """``value`` with NumPy arrays as tensors and NumPy scalars as Python numbers, through
+    dicts, lists and tuples: what ``torch.load(..., weights_only=True)`` reads without
+    allowing any NumPy code. Tensors and other values are kept as they are."""
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(np.array(value, copy=True))
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, OrderedDict):
+        return OrderedDict((k, plain_state(v)) for k, v in value.items())
     if isinstance(value, dict):
-        return {k: strict_json(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [strict_json(v) for v in value]
+        return {k: plain_state(v) for k, v in value.items()}
+    if type(value) in (list, tuple):
+        return type(value)(plain_state(v) for v in value)
     return value
 
 
-def metrics_line(row: dict[str, Any]) -> str:
-    """One ``metrics.jsonl`` line: strict JSON (non-finite values as ``null``), keys sorted."""
-    return json.dumps(strict_json(row), sort_keys=True, allow_nan=False) + "\n"
+@contextlib.contextmanager
+def _writing(path: Path, what: str) -> Iterator[None]:
+    """An OSError while writing ``what`` to ``path`` as a one-line RunDirError."""
+    try:
+        yield
+    except OSError as e:
+        raise RunDirError(f"{path}: cannot write {what} ({_reason(e)})") from None
 
 
-def read_metrics_row(row: Any) -> Any:
-    """A metrics row as read from JSON, with ``null`` values back as NaN (what was logged)."""
-    if not isinstance(row, dict):
-        return row
-    return {k: math.nan if v is None else v for k, v in row.items()}
+def _reason(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.strerror:
+        return e.strerror
+    return str(e).splitlines()[0] if str(e) else type(e).__name__
 
 
 def rng_state() -> dict[str, Any]:
@@ -195,9 +288,11 @@ def rng_state() -> dict[str, Any]:
 
 
 def set_rng_state(state: dict[str, Any]) -> None:
-    """Restore :func:`rng_state` (a CUDA state only where CUDA is available)."""
+    """Restore :func:`rng_state`, as taken or as a checkpoint stores it (:func:`plain_state`:
+    NumPy's key as a tensor); a CUDA state only where CUDA is available."""
     torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
+    kind, key, *rest = state["numpy"]
+    np.random.set_state((kind, np.asarray(key, dtype=np.uint32), *rest))
     random.setstate(state["python"])
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])

@@ -58,6 +58,7 @@ from gcnt.morphology import Robot
 from gcnt.recipes import Recipe
 from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings
+from gcnt.rl.config_check import check_replay_memory
 from gcnt.rl.factories import load_weights, make_net, network_weights
 from gcnt.rl.td3 import replay as rb
 from gcnt.rl.td3.config import TD3Config, target_rule
@@ -234,17 +235,23 @@ class TD3Learner:
             "updates": self.updates,
         }
 
-    def load_state_dict(self, state: dict) -> None:
+    def load_networks(self, state: dict) -> None:
+        """The four networks' weights from a :meth:`state_dict` (optimisers and counter left
+        as they are); a ValueError names the network that does not fit."""
         if "actor" not in state:
             raise ValueError(
                 "the checkpoint's TD3 learner state has an older layout (one torchrl TD3Loss); "
-                "its policy can still be evaluated (`gcnt eval`), but training cannot resume "
+                "its policy can still be evaluated (`gcnt eval`), but training cannot start "
                 "from it"
             )
-        load_weights(self.actor, state["actor"])
-        load_weights(self.critics, state["critics"])
-        load_weights(self.target_actor, state["target_actor"])
-        load_weights(self.target_critics, state["target_critics"])
+        for key in ("actor", "critics", "target_actor", "target_critics"):
+            try:
+                load_weights(getattr(self, key), state[key])
+            except ValueError as e:
+                raise ValueError(f"TD3 {key}: {e}") from None
+
+    def load_state_dict(self, state: dict) -> None:
+        self.load_networks(state)
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         # the recipe's learning rate wins over the saved one: a run resumed with another
@@ -360,6 +367,7 @@ class TD3(Algorithm):
         self.learner = TD3Learner(recipe, env)
         capacity = rb.per_robot_capacity(n, c.buffer_size_per_robot, c.buffer_total_size)
         replay_device = recipe.device if recipe.compile.replay_on_device else "cpu"
+        check_replay_memory(env, n, capacity, replay_device)  # allocated later: refuse it now
         self.replay = rb.RobotReplay(n, capacity, c.batch_size, device=replay_device)
         self.schedule = UpdateSchedule(c, n)
         self.stored = 0
@@ -424,6 +432,10 @@ class TD3(Algorithm):
         if "schedule" in state:
             self.schedule.load_state_dict(state["schedule"])
         self._buffer_file = state.get("buffer_file")
+
+    def start_from(self, state: dict[str, Any]) -> None:
+        # the actor, the critics and their targets; Adam, replay, schedule and counters fresh
+        self.learner.load_networks(state)
 
     def buffers_state(self, directory: Path) -> bool:
         """Write the replay (atomically) as ``replay-<stored>.pt``, named in the learner state

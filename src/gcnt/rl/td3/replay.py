@@ -212,4 +212,15 @@ class RobotReplay:
         return path
 
     def load(self, path: str | Path) -> None:
-        self.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
+        """Read :meth:`save`'s file (tensors and plain types only: ``weights_only=True``); an
+        unreadable or refused file is a CheckpointError naming it."""
+        from gcnt.rl.run_dir import CheckpointError
+
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # torch raises many kinds for a truncated or foreign file
+            detail = str(e).splitlines()[0] if str(e) else "no detail"
+            raise CheckpointError(
+                f"{path}: not a readable replay checkpoint ({type(e).__name__}: {detail})"
+            ) from None
+        self.load_state_dict(state)

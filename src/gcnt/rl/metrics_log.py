@@ -1,0 +1,92 @@
+"""``metrics.jsonl``, a run's local record: one strict-JSON line per log step.
+
+Written by :meth:`gcnt.rl.run_dir.RunDir.log_metrics` and read by every reader (resume, the
+analysis commands) through :func:`read_metrics`. A run stopped while appending a line (killed,
+or a full disk) leaves that last line incomplete: it is dropped with one warning. A corrupt
+line before the last one is damage of another kind (two writers, an edit) and is an error
+naming the file and line. Imports no torch, so that the analysis commands stay quick.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+#: (file, line number) of the incomplete last lines already warned about in this process
+_warned: set[tuple[str, int]] = set()
+
+
+class MetricsFileError(ValueError):
+    """A ``metrics.jsonl`` line before the last one that is not a JSON object."""
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, ±inf) replaced by None, so that ``json.dumps``
+    writes ``null`` (strict JSON has no ``NaN``); dicts, lists and tuples are copied."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [strict_json(v) for v in value]
+    return value
+
+
+def metrics_line(row: dict[str, Any]) -> str:
+    """One ``metrics.jsonl`` line: strict JSON (non-finite values as ``null``), keys sorted."""
+    return json.dumps(strict_json(row), sort_keys=True, allow_nan=False) + "\n"
+
+
+def read_metrics_row(row: Any) -> Any:
+    """A metrics row as read from JSON, with ``null`` values back as NaN (what was logged)."""
+    if not isinstance(row, dict):
+        return row
+    return {k: math.nan if v is None else v for k, v in row.items()}
+
+
+def read_metrics(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of the metrics file ``path`` (none when it does not exist), ``null`` read as
+    NaN. An incomplete last line is dropped with a warning; a line before it that is not a
+    JSON object raises MetricsFileError naming the file and line."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return []
+    except (OSError, UnicodeDecodeError) as e:
+        raise MetricsFileError(
+            f"{path}: unreadable ({getattr(e, 'strerror', None) or e})"
+        ) from None
+    lines = text.splitlines()
+    rows = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            row = None
+        if isinstance(row, dict):
+            rows.append(read_metrics_row(row))
+        elif number == len(lines):
+            _warn_incomplete(path, number)
+        else:
+            raise MetricsFileError(
+                f"{path}, line {number}: not a metrics row (the file is damaged; was it written "
+                "by two runs at once or edited?)"
+            )
+    return rows
+
+
+def _warn_incomplete(path: Path, number: int) -> None:
+    key = (str(path.resolve()), number)
+    if key not in _warned:
+        _warned.add(key)
+        log.warning(
+            "%s: line %d is incomplete (the run stopped while writing it); dropped", path, number
+        )

@@ -1,0 +1,33 @@
+"""``gcnt bench-train``'s arithmetic figures: FLOPs counted from the shapes, share of a peak."""
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from gcnt.commands.bench_train import arithmetic, count_flops, matmul_peak_gflops
+
+
+def test_count_flops_of_a_linear_layer_and_its_backward():
+    lin = torch.nn.Linear(32, 96)
+    x = torch.randn(1920, 32)
+    flops, out = count_flops(lambda: lin(x))
+    assert flops == 2 * 1920 * 32 * 96
+    assert out.shape == (1920, 96)
+    flops, _ = count_flops(lambda: lin(x).sum().backward())
+    assert flops == 2 * (2 * 1920 * 32 * 96)  # forward, and the weight's gradient
+
+
+def test_count_flops_counts_the_cpu_attention_kernel():
+    n, h, k, d = 8, 2, 5, 16
+    q = torch.randn(n, h, k, d)
+    with torch.no_grad():
+        flops, _ = count_flops(lambda: F.scaled_dot_product_attention(q, q, q))
+    assert flops == 2 * (2 * n * h * k * k * d)  # scores and weighted sum
+
+
+def test_arithmetic_share_of_the_peak():
+    a = arithmetic(5e8, 40.0, peak=100.0)
+    assert math.isclose(a["gflops_per_s"], 20.0)
+    assert math.isclose(a["share_of_peak"], 0.2)
+    assert matmul_peak_gflops(size=64, repeats=2) > 0
