@@ -311,12 +311,16 @@ def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
     is one network per robot), a few steps."""
     from gcnt.rl.loop import train
 
-    single = load_recipe(path).network.name == "sr"
+    from gcnt.morphology.catalogues import resolve_robots
+
+    own = load_recipe(path)
+    single = own.network.name == "sr"
+    names = [r.name for r in resolve_robots(own.env.robots)][: 1 if single else 2]
     recipe = load_recipe(
         path,
         [
             f"run_dir={tmp_path / 'run'}",
-            "env.robots=[unimal_0000]" if single else "env.robots=[unimal_0000, unimal_0001]",
+            f"env.robots=[{', '.join(names)}]",
             "env.test_robots=[]",
             "env.max_episode_steps=8",
             "env.num_threads=1",
@@ -329,7 +333,7 @@ def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
             "logger.progress=false",
             "logger.log_interval=12",
             "eval.episodes=1",
-            "eval.robots=[unimal_0000]",
+            f"eval.robots=[{names[0]}]",
             "checkpoint_interval=12",
             *([] if single else ["network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}"]),
         ],
