@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from gcnt.cli import build_parser
+from gcnt.cli import COMMANDS, build_parser
 from gcnt.cli import main as gcnt
 from gcnt.rl.run_dir import RunDir
 
@@ -91,6 +91,14 @@ def test_resume_takes_overrides_after_options():
 def test_sweep_keeps_sorting_its_own_words():
     argv = ["sweep", "R.yaml", "--seeds", "0-2", "a=1"]
     assert build_parser(only="sweep").parse_args(argv).items == argv[1:]
+
+
+@pytest.mark.parametrize("command", [None, *COMMANDS])
+def test_every_help_prints(command, capsys):
+    argv = ["--help"] if command is None else [command, "--help"]
+    with pytest.raises(SystemExit) as stop:
+        gcnt(argv)
+    assert stop.value.code == 0 and "usage: gcnt" in capsys.readouterr().out
 
 
 def test_bench_train_defaults_to_the_quick_start():

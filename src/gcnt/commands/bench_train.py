@@ -33,7 +33,12 @@ import time
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "recipe", nargs="?", default="recipes/quickstart.yaml", help="(default: %(default)s)"
+        "recipe",
+        nargs="?",
+        default="recipes/quickstart.yaml",
+        # written out: argparse's intermixed parsing hides a positional's default while it
+        # prints --help, so "%(default)s" would fail there
+        help="recipe file (default: recipes/quickstart.yaml)",
     )
     p.add_argument("overrides", nargs="*", help="dotted recipe overrides")
     p.add_argument("--updates", type=int, default=30, help="bare updates to time")
