@@ -298,3 +298,28 @@ def test_one_distance_table_shared_by_all_layers_by_default():
     assert shared["dist_bias"].module.embed.weight.shape == (16, 2)
     assert per_layer["dist_bias"].module.embed.weight.shape == (16, 3 * 2)
     assert shared["transformer"].module.encoder.bias_mode == "shared"
+
+
+@pytest.mark.parametrize("length", [1, 5, 40])
+def test_attention_equals_torch_sdpa_with_its_gradients(length):
+    """The short-sequence path of ``layers.attention`` computes torch's scaled_dot_product_attention
+    (float64: values and the gradients of q, k, v and a learned bias, padded keys at -inf)."""
+    from gcnt.nn.layers import attention, key_padding_bias
+
+    g = torch.Generator().manual_seed(0)
+    n, h, d = 7, 2, 4
+    q, k, v = (torch.randn(n, h, length, d, generator=g, dtype=torch.float64) for _ in range(3))
+    bias = torch.randn(n, h, length, length, generator=g, dtype=torch.float64)
+    mask = torch.ones(n, length, dtype=torch.bool)
+    mask[: n // 2, (length + 1) // 2 :] = False  # padded limbs on half the samples
+    results = []
+    for fn in (attention, torch.nn.functional.scaled_dot_product_attention):
+        leaves = [t.clone().requires_grad_() for t in (q, k, v, bias)]
+        m = key_padding_bias(mask, torch.float64) + leaves[3]
+        out = fn(leaves[0], leaves[1], leaves[2], attn_mask=m)
+        out.backward(
+            torch.randn(out.shape, generator=torch.Generator().manual_seed(1), dtype=out.dtype)
+        )
+        results.append([out.detach(), *(t.grad for t in leaves)])
+    for mine, torch_ in zip(*results, strict=True):
+        torch.testing.assert_close(mine, torch_, rtol=1e-10, atol=1e-12)

@@ -4,6 +4,7 @@ losses and their gradients, for every method, on mixed batches and on the paper 
 one-robot batches, and the soft target update moving the targets by tau.
 """
 
+import copy
 from pathlib import Path
 
 import pytest
@@ -149,3 +150,28 @@ def test_soft_target_update_moves_targets_by_tau():
         before, learner.target_actor.parameters(), learner.actor.parameters(), strict=True
     ):
         torch.testing.assert_close(t, (1 - tau) * b + tau * p)
+
+
+def test_twin_critics_on_two_threads_make_the_same_updates():
+    """compile.twin_threads: the critics and target critics on two threads give the updates of
+    the critics in turn (float64, the learner's own steps, with gradient clipping), and the
+    switch is refused where it cannot hold."""
+    from gcnt.rl.td3.twin import AtOnce, InTurn
+
+    _, learner, batch = _double_learner(["td3.max_grad_norm=0.5"])
+    twin = copy.deepcopy(learner)
+    learner.twin, twin.twin = InTurn(), AtOnce()
+    for _ in range(4):  # two actor steps (policy_delay 2)
+        torch.manual_seed(3)
+        losses = learner.update(batch)
+        torch.manual_seed(3)
+        assert twin.update(batch) == pytest.approx(losses, rel=1e-12)
+    for name in ("actor", "critics", "target_actor", "target_critics"):
+        mine = dict(getattr(twin, name).named_parameters())
+        for key, p in getattr(learner, name).named_parameters():
+            torch.testing.assert_close(mine[key], p, rtol=1e-12, atol=1e-14, msg=f"{name}.{key}")
+
+    with pytest.raises(ValueError, match="dropout"):
+        _double_learner(["compile.twin_threads=true", "network.name=metamorph"])
+    with pytest.raises(ValueError, match="twin_threads"):
+        load_recipe(QUICK, ["compile.twin_threads=true", "compile.compile=true"])

@@ -129,11 +129,20 @@ class CompileConfig:
     policy_cudagraphs: bool = False
     #: eager calls before a step is compiled or captured
     warmup: int = 2
+    #: TD3: run the two critics (and the two target critics) of each update at once on two
+    #: threads (torch intra-op threads 1 meanwhile); null (default): on when
+    #: the update runs eagerly on a CPU with at least 2 usable cores
+    twin_threads: bool | None = None
 
     #: switches that need a CUDA device
     CUDA_ONLY = ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs")
 
     def check(self) -> None:
+        if self.twin_threads and (self.compile or self.cudagraphs):
+            raise ValueError(
+                "twin_threads=true runs the critics on two Python threads, which a compiled or "
+                "CUDA-graphed step cannot hold; set compile.twin_threads=false"
+            )
         if self.warmup < 1:
             raise ValueError(f"warmup must be >= 1, got {self.warmup}")
         modes = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")

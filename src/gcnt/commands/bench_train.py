@@ -118,13 +118,18 @@ def arithmetic_line(a: dict, peak: float, unit: str = "update") -> str:
     )
 
 
-def bare_update_rate(recipe, n_updates: int) -> dict:
-    """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it, and the
-    FLOPs per update (counted over one ``policy_delay`` period of the warm-up: a critic step
-    each update, an actor step once)."""
+def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
+    """Updates/s on one fixed mini-batch shaped as the recipe's schedule samples it (median of
+    ``rounds`` rounds), and the FLOPs per update (counted over one ``policy_delay`` period of the
+    warm-up: a critic step each update, an actor step once). When the learner runs its twin
+    critics on two threads (``compile.twin_threads``), the same learner with the critics in turn
+    is timed too, in alternate rounds: ``in_turn_updates_per_s``."""
+    import statistics
+
     from gcnt.rl.factories import make_env, train_robots
     from gcnt.rl.td3 import replay as rb
     from gcnt.rl.td3.learner import TD3Learner
+    from gcnt.rl.td3.twin import InTurn
 
     c = recipe.td3
     robots = train_robots(recipe)
@@ -139,13 +144,23 @@ def bare_update_rate(recipe, n_updates: int) -> dict:
     learner.update(batch)
     period = c.policy_delay
     flops, _ = count_flops(lambda: [learner.update(batch) for _ in range(period)])
-    t0 = time.perf_counter()
-    for _ in range(n_updates):
-        learner.update(batch)
-    return {
-        "updates_per_s": n_updates / (time.perf_counter() - t0),
-        "flops_per_update": flops / period,
-    }
+    runners = {"updates_per_s": learner.twin}
+    if learner.twin.parallel:
+        runners["in_turn_updates_per_s"] = InTurn()
+    # whole policy_delay periods per round, so that every round holds the same actor steps
+    per_round = max(period, -(-n_updates // rounds // period) * period)
+    rates: dict[str, list[float]] = {k: [] for k in runners}
+    for _ in range(rounds):
+        for key, runner in runners.items():
+            learner.twin = runner
+            t0 = time.perf_counter()
+            for _ in range(per_round):
+                learner.update(batch)
+            rates[key].append(per_round / (time.perf_counter() - t0))
+    out = {k: statistics.median(v) for k, v in rates.items()}
+    out["twin_threads"] = len(runners) > 1
+    out["flops_per_update"] = flops / period
+    return out
 
 
 def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
@@ -335,6 +350,8 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         e2e = end_to_end_rate(r, args.warmup, args.steps)
         out["schedules"][schedule] = {
             "bare_updates_per_s": bare,
+            "twin_threads": measured["twin_threads"],
+            "bare_in_turn_updates_per_s": measured.get("in_turn_updates_per_s"),
             "bare_update_ms": 1e3 / bare,
             "arithmetic": arithmetic(measured["flops_per_update"], bare, peak),
             "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
@@ -354,8 +371,16 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
     for schedule, row in out["schedules"].items():
         print(
             f"{schedule:6s} bare TD3 update {row['bare_updates_per_s']:8.2f} updates/s "
-            f"({row['bare_update_ms']:.1f} ms, {out['threads']} torch threads)"
+            f"({row['bare_update_ms']:.1f} ms, {out['threads']} torch threads"
+            + (", twin critics on two threads)" if row["twin_threads"] else ")")
         )
+        if row["twin_threads"]:
+            turn = row["bare_in_turn_updates_per_s"]
+            print(
+                f"       the critics in turn (compile.twin_threads=false): {turn:.2f} updates/s "
+                f"({1e3 / turn:.1f} ms); two threads are {row['bare_updates_per_s'] / turn:.2f}x "
+                "that"
+            )
         print(arithmetic_line(row["arithmetic"], peak))
         if not row["updates"]:
             print(

@@ -1,8 +1,7 @@
 """Plain torch building blocks shared by GCNT and the baselines (no method imports another).
 
 * :class:`EncoderLayer`: the Transformer encoder layer of the package (GCNT, AMORPHEUS, SWAT,
-  MetaMorph): multi-head self-attention through ``F.scaled_dot_product_attention`` with an
-  additive float mask (a learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward
+  MetaMorph): multi-head self-attention (:func:`attention`) with an additive float mask (a learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward
   block, with post-LN (AMORPHEUS) or pre-LN (MetaMorph) residuals. Its parameter shapes match
   ``torch.nn.TransformerEncoderLayer``.
 * :class:`ContextAttentionLayer`: ModuMorph's "fixed attention" layer (queries and keys from a
@@ -47,6 +46,39 @@ def last_linear(net: nn.Module) -> nn.Linear:
     return found[-1]
 
 
+#: on a CPU, sequences up to this many tokens take :func:`attention`'s batched-matmul path
+SHORT_SEQUENCE = 32
+
+
+def attention(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor, dropout_p: float = 0.0) -> Tensor:
+    """softmax(q·kᵀ/√d_h + attn_mask)·v for ``q, k, v`` [N, H, L, d_h] and an additive float
+    mask broadcastable to [N, H, L, L]: ``F.scaled_dot_product_attention``'s result.
+
+    Robots have a handful of limbs, and for so few tokens torch's CPU kernels are slow where
+    the arithmetic is tiny: the flash kernel tiles for long sequences (0.8 ms for 384 robots × 2
+    heads × 5 limbs on one core, a batched matmul 0.4 ms), and ``torch.softmax`` over a last dim
+    of 5 costs ~20 ns per element. On a CPU, without attention dropout and for up to
+    :data:`SHORT_SEQUENCE` tokens, the same formula therefore runs as two batched matmuls and a
+    softmax from elementwise ops (max-subtracted, as every softmax kernel does); anything else
+    goes to ``F.scaled_dot_product_attention``.
+    """
+    n, h, length, d = q.shape
+    if q.device.type != "cpu" or dropout_p > 0 or length > SHORT_SEQUENCE:
+        return F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask, dropout_p=dropout_p)
+    b = n * h
+    mask = attn_mask.expand(n, h, length, length).reshape(b, length, length)
+    logits = torch.baddbmm(
+        mask,
+        q.reshape(b, length, d),
+        k.reshape(b, length, d).transpose(1, 2),
+        alpha=1.0 / math.sqrt(d),
+    )
+    # the max only keeps exp() in range: it cancels out of the result, so no gradient through it
+    e = (logits - logits.amax(-1, keepdim=True).detach()).exp()
+    weights = e / e.sum(-1, keepdim=True)
+    return torch.bmm(weights, v.reshape(b, length, d)).view(n, h, length, d)
+
+
 def key_padding_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
     """Additive attention mask [N, 1, 1, K]: 0 on real keys, -inf on padded ones."""
     zero = torch.zeros((), dtype=dtype, device=mask.device)
@@ -81,9 +113,7 @@ class EncoderLayer(nn.Module):
     def attention(self, x: Tensor, attn_mask: Tensor) -> Tensor:
         n, k, d = x.shape
         q, kk, v = self.qkv(x).view(n, k, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
-        out = F.scaled_dot_product_attention(
-            q, kk, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
-        )
+        out = attention(q, kk, v, attn_mask, self.dropout if self.training else 0.0)
         return self.proj(out.transpose(1, 2).reshape(n, k, d))
 
     def feed_forward(self, x: Tensor) -> Tensor:
@@ -168,9 +198,7 @@ class ContextAttentionLayer(EncoderLayer):
         q = heads(F.linear(c, w[:d], b[:d]))
         kk = heads(F.linear(c, w[d : 2 * d], b[d : 2 * d]))
         v = heads(F.linear(x, w[2 * d :], b[2 * d :]))
-        out = F.scaled_dot_product_attention(
-            q, kk, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
-        )
+        out = attention(q, kk, v, attn_mask, self.dropout if self.training else 0.0)
         return self.proj(out.transpose(1, 2).reshape(n, k, d))
 
     def forward(self, x: Tensor, ctx: Tensor, attn_mask: Tensor) -> Tensor:  # type: ignore[override]

@@ -13,9 +13,10 @@ collected batch to :meth:`TD3.process`):
    (:func:`~gcnt.rl.td3.loss.smoothed_target_action`), the target critics' per-limb Q' and the
    TD target (:func:`~gcnt.rl.td3.loss.td_target`; per limb by default, as the AMORPHEUS/SWAT
    code: ``td3.target``);
-4. **critic step** (:meth:`TD3Learner._critic_step`): the twin-critic loss
-   (:func:`~gcnt.rl.td3.loss.twin_critic_loss`), backward, then :func:`apply_gradients` (clip →
-   Adam step → zero_grad);
+4. **critic step** (:meth:`TD3Learner._critic_step`): each critic's error
+   (:func:`~gcnt.rl.td3.loss.critic_error`) and its backward, then :func:`apply_gradients` (clip →
+   Adam step → zero_grad); on a CPU the two critics, and before them the two target critics, run
+   at once on two threads (:mod:`~gcnt.rl.td3.twin`, ``compile.twin_threads``);
 5. **delayed actor and target step** (:func:`delayed_update`, every ``policy_delay`` critic
    steps, :meth:`TD3Learner._actor_step`): -Q1 of the actor's action
    (:func:`~gcnt.rl.td3.loss.deterministic_actor_loss`), gradients for the actor only,
@@ -63,13 +64,14 @@ from gcnt.rl.factories import load_weights, make_net, network_weights
 from gcnt.rl.td3 import replay as rb
 from gcnt.rl.td3.config import TD3Config, target_rule
 from gcnt.rl.td3.loss import (
+    critic_error,
     deterministic_actor_loss,
     smoothed_target_action,
     target_noise,
     td_target,
-    twin_critic_loss,
 )
-from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule
+from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule, has_dropout
+from gcnt.rl.td3.twin import InTurn, make_pair_runner
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +106,13 @@ class TD3Learner:
         opt_kw = optimizer_kwargs(self.accel, self.device)
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=o.lr, **opt_kw)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=o.lr, **opt_kw)
+        #: how the twin (target) critics run: in turn, or at once on two threads
+        self.twin = make_pair_runner(
+            self.accel.twin_threads,
+            self.device,
+            compiled=self.accel.compile or self.accel.cudagraphs,
+            dropout=has_dropout(self.critics),
+        )
         self.critic_step = accelerate(self._critic_step, self.accel, self.device)
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
@@ -124,6 +133,7 @@ class TD3Learner:
         shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
         shell.rule = self.rule
         shell.device = self.device
+        shell.twin = InTurn()  # vmapped by the stacked learner: no threads inside
         shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
         shell.target_actor = copy.deepcopy(self.target_actor)
         shell.target_critics = copy.deepcopy(self.target_critics)
@@ -145,10 +155,13 @@ class TD3Learner:
         batch: TensorDictBase,
         noise: torch.Tensor | None = None,
         morph_id: torch.Tensor | None = None,
+        backward: bool = False,
     ) -> torch.Tensor:
-        """The twin-critic loss on ``batch``. ``noise``: the target-smoothing noise (drawn here
-        first when not given, as :func:`target_noise`); ``morph_id``: the samples' robots (read
-        from ``batch`` when not given)."""
+        """The twin-critic loss on ``batch`` (the sum of the critics' errors). ``noise``: the
+        target-smoothing noise (drawn here first when not given, as :func:`target_noise`);
+        ``morph_id``: the samples' robots (read from ``batch`` when not given); ``backward``:
+        backpropagate each critic's error where it is computed (on its thread, see
+        :attr:`twin`) and return the loss detached."""
         o = self.config
         ids = batch.get(MORPH_ID) if morph_id is None else morph_id
         robots = self.f_critics[0].robot_batch(ids, self.f_actor)
@@ -161,19 +174,28 @@ class TD3Learner:
                 nxt = self._inputs(batch, next_step=True)
                 next_action = self.f_target_actor(nxt, robots)[ACTION]
                 nxt[ACTION] = smoothed_target_action(next_action, noise)
-                next_q = tuple(f(nxt, robots)[LIMB_Q] for f in self.f_target_critics)
+                next_q = self.twin.map(lambda f: f(nxt, robots)[LIMB_Q], self.f_target_critics)
                 target = td_target(
                     batch.get((K.NEXT, K.REWARD)),
                     batch.get((K.NEXT, K.TERMINATED)),
-                    next_q,
+                    tuple(next_q),
                     mask,
                     o.gamma,
                     self.rule,
                 )
             now = self._inputs(batch, next_step=False)
             now[ACTION] = action
-            q = tuple(f(now, robots)[LIMB_Q] for f in self.f_critics)
-            return twin_critic_loss(q, target.to(q[0].dtype), mask, self.rule).to(action.dtype)
+
+            def error(f: TensorChain) -> torch.Tensor:
+                q = f(now, robots)[LIMB_Q]
+                e = critic_error(q, target.to(q.dtype), mask, self.rule)
+                if backward:
+                    e.backward()
+                    return e.detach()
+                return e
+
+            errors = self.twin.map(error, self.f_critics)
+            return (errors[0] + errors[1]).to(action.dtype)
 
     def actor_loss(
         self, batch: TensorDictBase, morph_id: torch.Tensor | None = None
@@ -193,8 +215,7 @@ class TD3Learner:
     # behind (zeroed after the optimiser step, as a captured graph needs).
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update on ``batch``; returns ``loss_critic``."""
-        loss = self.critic_loss(batch)
-        loss.backward()
+        loss = self.critic_loss(batch, backward=True)
         apply_gradients(self.critic_opt, self.critic_params, self.config.max_grad_norm, clip_norm)
         return TensorDict({"loss_critic": loss.detach()})
 

@@ -94,17 +94,24 @@ def td_target(
     return reward.to(v_next.dtype) + gamma * not_term * v_next
 
 
+def critic_error(
+    q: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, rule: str = "limb"
+) -> torch.Tensor:
+    """One critic's squared error of ``rule``: per real limb against the limb's (``"limb"``,
+    target [*B, K]) or the robot's (``"robot_mean"``, [*B, 1]) target, averaged as
+    :func:`masked_mean`; or (``"robot_sum"``) of each robot's summed Q [*B, 1] against its
+    target, averaged over the batch. ``q``: the critic's per-limb values [*B, K, 1]."""
+    if rule == "robot_sum":
+        return (_robot_sum(q, mask) - target).pow(2).mean()
+    return masked_mean((q.squeeze(-1) - target).pow(2), mask)
+
+
 def twin_critic_loss(
     q: tuple[torch.Tensor, ...], target: torch.Tensor, mask: torch.Tensor, rule: str = "limb"
 ) -> torch.Tensor:
-    """Σ over critics of the squared error of ``rule``: per real limb against the limb's
-    (``"limb"``, target [*B, K]) or the robot's (``"robot_mean"``, [*B, 1]) target, averaged
-    as :func:`masked_mean`; or (``"robot_sum"``) of each robot's summed Q [*B, 1] against its
-    target, averaged over the batch. ``q``: the critics' per-limb values [*B, K, 1]."""
-    if rule == "robot_sum":
-        return sum((_robot_sum(qi, mask) - target).pow(2) for qi in q).mean()
-    per_limb = sum((qi.squeeze(-1) - target).pow(2) for qi in q)  # [*B, K]
-    return masked_mean(per_limb, mask)
+    """Σ over critics of :func:`critic_error` (the averages are linear, so this is also the
+    error of the summed squares)."""
+    return sum(critic_error(qi, target, mask, rule) for qi in q)
 
 
 def deterministic_actor_loss(

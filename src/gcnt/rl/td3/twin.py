@@ -1,0 +1,99 @@
+"""The twin critics of a TD3 update, one after the other or on two threads at once.
+
+TD3's two critics (and its two target critics) are independent networks of the same shape: the
+same calls on the same batch with different weights. On a CPU whose update is bound by the cost
+of many small kernels, not by arithmetic, torch's own intra-op threads barely help (each kernel
+is too small to split), while running the two critics at once, each on one core, nearly halves
+their time: torch releases the GIL inside its kernels and the autograd engine runs concurrent
+``backward`` calls of disjoint graphs concurrently. Each critic's operations are the same, in the
+same order, as when they run in turn.
+
+:class:`InTurn` and :class:`AtOnce` share one method, ``map(fn, (a, b)) -> [fn(a), fn(b)]``;
+:func:`make_pair_runner` picks one for a recipe's ``compile.twin_threads``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import torch
+
+
+class InTurn:
+    """``fn`` on each item, one after the other."""
+
+    parallel = False
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
+        return [fn(x) for x in items]
+
+
+class AtOnce:
+    """``fn`` on two items at once: the second on a helper thread, the first on the caller's.
+
+    The helper inherits the caller's grad mode (torch's grad mode is per thread). While the two
+    run, torch's intra-op threads are 1 (two threads already use two cores; more would only
+    compete for them); the caller's setting is restored afterwards, for the steps around."""
+
+    parallel = True
+
+    def __init__(self) -> None:
+        self._pool: ThreadPoolExecutor | None = None
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
+        first, second = items
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(
+                1, thread_name_prefix="gcnt-twin", initializer=torch.set_num_threads, initargs=(1,)
+            )
+        grad = torch.is_grad_enabled()
+
+        def helper() -> Any:
+            with torch.set_grad_enabled(grad):
+                return fn(second)
+
+        threads = torch.get_num_threads()
+        if threads != 1:
+            torch.set_num_threads(1)
+        try:
+            future = self._pool.submit(helper)
+            try:
+                out = fn(first)
+            finally:
+                other = future.result()  # waited for even when fn(first) failed
+        finally:
+            if threads != 1:
+                torch.set_num_threads(threads)
+        return [out, other]
+
+    def __getstate__(self) -> dict:  # deep copies (loss shells) start without a pool
+        return {"_pool": None}
+
+
+def usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def make_pair_runner(
+    setting: bool | None, device: torch.device, compiled: bool, dropout: bool
+) -> InTurn | AtOnce:
+    """``compile.twin_threads``: True -> :class:`AtOnce`, False -> :class:`InTurn`; None (auto)
+    -> :class:`AtOnce` when the update runs eagerly on a CPU with at least 2 usable cores and
+    the critics have no active dropout. Dropout draws from torch's one global generator, and two
+    threads would draw in an order that changes from run to run (a seeded run would not repeat),
+    so ``True`` with dropout is refused."""
+    if setting and dropout:
+        raise ValueError(
+            "compile.twin_threads=true: the critics have dropout, whose random draws two threads "
+            "would make in a varying order (a seeded run would not repeat); set it to false or "
+            "leave it unset"
+        )
+    if setting is None:
+        setting = device.type == "cpu" and not compiled and not dropout and usable_cpus() >= 2
+    return AtOnce() if setting else InTurn()
