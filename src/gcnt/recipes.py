@@ -130,8 +130,8 @@ class CompileConfig:
     #: eager calls before a step is compiled or captured
     warmup: int = 2
     #: TD3: run the two critics (and the two target critics) of each update at once on two
-    #: threads (torch intra-op threads 1 meanwhile); null (default): on when
-    #: the update runs eagerly on a CPU with at least 2 usable cores
+    #: threads, with torch's intra-op threads set to 1 for the process; null (default): on when
+    #: the update runs eagerly on a CPU with 2 to 4 usable cores and no dropout
     twin_threads: bool | None = None
 
     #: switches that need a CUDA device

@@ -29,13 +29,16 @@ import argparse
 import json
 import tempfile
 import time
+from pathlib import Path
+
+DEFAULT_RECIPE = "recipes/quickstart.yaml"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "recipe",
         nargs="?",
-        default="recipes/quickstart.yaml",
+        default=DEFAULT_RECIPE,
         # written out: argparse's intermixed parsing hides a positional's default while it
         # prints --help, so "%(default)s" would fail there
         help="recipe file (default: recipes/quickstart.yaml)",
@@ -126,6 +129,8 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
     is timed too, in alternate rounds: ``in_turn_updates_per_s``."""
     import statistics
 
+    import torch
+
     from gcnt.rl.factories import make_env, train_robots
     from gcnt.rl.td3 import replay as rb
     from gcnt.rl.td3.learner import TD3Learner
@@ -141,11 +146,15 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
     batch = replay.sample_mixed() if c.schedule == "mixed" else replay.sample_robot(0)
     learner = TD3Learner(recipe, env)
     env.close()
+    threads = torch.get_num_threads()  # before the twin critics set it to 1
     learner.update(batch)
     period = c.policy_delay
+    # on one thread: torch's flop counter sees only the thread it was entered on
+    configured, learner.twin = learner.twin, InTurn()
     flops, _ = count_flops(lambda: [learner.update(batch) for _ in range(period)])
-    runners = {"updates_per_s": learner.twin}
-    if learner.twin.parallel:
+    runners = {"updates_per_s": configured}
+    if configured.parallel:
+        # the baseline: the critics in turn with torch's threads as they were
         runners["in_turn_updates_per_s"] = InTurn()
     # whole policy_delay periods per round, so that every round holds the same actor steps
     per_round = max(period, -(-n_updates // rounds // period) * period)
@@ -153,12 +162,16 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
     for _ in range(rounds):
         for key, runner in runners.items():
             learner.twin = runner
+            torch.set_num_threads(1 if runner.parallel else threads)
             t0 = time.perf_counter()
             for _ in range(per_round):
                 learner.update(batch)
             rates[key].append(per_round / (time.perf_counter() - t0))
+    learner.twin = configured
+    torch.set_num_threads(1 if configured.parallel else threads)
     out = {k: statistics.median(v) for k, v in rates.items()}
-    out["twin_threads"] = len(runners) > 1
+    out["twin_threads"] = configured.parallel
+    out["in_turn_threads"] = threads
     out["flops_per_update"] = flops / period
     return out
 
@@ -210,6 +223,13 @@ def _train_quietly(recipe, log_interval: int) -> list[dict]:
 
 
 def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
+    """Env steps/s and updates/s of ``gcnt train`` over ``steps`` env steps after ``warmup``
+    random ones, one lockstep step per batch. The warm-up covers at least a mini-batch of every
+    robot, so that each timed step is followed by its updates (the schedule waits for full
+    mini-batches: steps before that would count as time without updates)."""
+    from gcnt.rl.factories import train_robots
+
+    warmup = max(warmup, recipe.td3.batch_size * len(train_robots(recipe)))
     recipe.td3.init_random_frames = warmup
     recipe.collector.total_frames = warmup + steps
     recipe.td3.steps_per_batch = 1
@@ -228,6 +248,8 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
 def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
 
+    if "=" in args.recipe and not Path(args.recipe).exists():  # only overrides were given
+        args.overrides, args.recipe = [args.recipe, *args.overrides], DEFAULT_RECIPE
     recipe = load_recipe(args.recipe, args.overrides)
     if not args.json:
         print(f"recipe: {args.recipe} ({recipe.algo}, {recipe.network.name})")
@@ -337,21 +359,24 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         "network": recipe.network.name,
         "batch_size": recipe.td3.batch_size,
         "updates_per_step": recipe.td3.updates_per_step,
-        "threads": torch.get_num_threads(),
         "matmul_peak_gflops": peak,
         "replay_sample_ms": replay_sample_ms(recipe),
         "schedules": {},
     }
+    threads = torch.get_num_threads()
     for schedule in ("paper", "mixed"):
         r = copy.deepcopy(recipe)
         r.td3.schedule = schedule
+        torch.set_num_threads(threads)  # twin critics set it to 1: each measurement starts alike
         measured = bare_update_rate(r, args.updates)
         bare = measured["updates_per_s"]
+        torch.set_num_threads(threads)
         e2e = end_to_end_rate(r, args.warmup, args.steps)
         out["schedules"][schedule] = {
             "bare_updates_per_s": bare,
             "twin_threads": measured["twin_threads"],
             "bare_in_turn_updates_per_s": measured.get("in_turn_updates_per_s"),
+            "in_turn_torch_threads": measured["in_turn_threads"],
             "bare_update_ms": 1e3 / bare,
             "arithmetic": arithmetic(measured["flops_per_update"], bare, peak),
             "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
@@ -371,15 +396,18 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
     for schedule, row in out["schedules"].items():
         print(
             f"{schedule:6s} bare TD3 update {row['bare_updates_per_s']:8.2f} updates/s "
-            f"({row['bare_update_ms']:.1f} ms, {out['threads']} torch threads"
-            + (", twin critics on two threads)" if row["twin_threads"] else ")")
+            + (
+                f"({row['bare_update_ms']:.1f} ms, twin critics on two threads, 1 torch thread)"
+                if row["twin_threads"]
+                else f"({row['bare_update_ms']:.1f} ms, {row['in_turn_torch_threads']} torch threads)"
+            )
         )
         if row["twin_threads"]:
             turn = row["bare_in_turn_updates_per_s"]
             print(
-                f"       the critics in turn (compile.twin_threads=false): {turn:.2f} updates/s "
-                f"({1e3 / turn:.1f} ms); two threads are {row['bare_updates_per_s'] / turn:.2f}x "
-                "that"
+                f"       the critics in turn on {row['in_turn_torch_threads']} torch threads "
+                f"(compile.twin_threads=false): {turn:.2f} updates/s ({1e3 / turn:.1f} ms); "
+                f"twin threads are {row['bare_updates_per_s'] / turn:.2f}x that"
             )
         print(arithmetic_line(row["arithmetic"], peak))
         if not row["updates"]:
