@@ -342,6 +342,22 @@ def test_only_losses_stop_a_run_not_diagnostics_that_may_be_nan(tmp_path):
         _check_losses(run, {"loss_policy": math.inf}, 10, 3)
 
 
+@pytest.mark.parametrize(
+    "value, finite",
+    [(0.5, True), (math.nan, False), (math.inf, False), (-math.inf, False), (3e38, True)],
+)
+def test_the_finiteness_check_decides_per_element(value, finite):
+    """The divergence check's fused norm is only a fast path: a NaN or inf anywhere is caught,
+    and finite weights whose norm overflows float32 (3e38 squared) are still finite."""
+    from gcnt.rl.loop import _all_finite
+
+    w = torch.zeros(4, 3)
+    w[1, 2] = value
+    state = {"actor": {"w": w, "b": torch.ones(3, dtype=torch.float64), "n": torch.arange(3)}}
+    assert _all_finite(state) is finite
+    assert _all_finite({"empty": [torch.zeros(0), torch.arange(2)]})
+
+
 def test_a_nan_injected_after_a_checkpoint_stops_the_run_which_resumes_from_it(
     tmp_path, recipe_file, capsys, monkeypatch
 ):

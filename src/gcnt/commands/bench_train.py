@@ -7,6 +7,8 @@ environment steps per second and updates per second. The ratio of end-to-end to 
 the fraction of time spent learning; 1.0 means the env, collector and buffers cost nothing. With
 one update per environment step (the paper), env steps/s equals updates/s in the long run; over a
 short window the paper schedule's not-yet-trained pending steps make env steps/s look higher.
+End to end collects in the recipe's own batches (``td3.steps_per_batch``, 50 lockstep steps by
+default), as ``gcnt train`` does.
 
 PPO recipes (``algo: ppo``): (1) the bare PPO update of one iteration (GAE, epochs of mini-batch
 steps, statistics; KL early stop off so that every epoch runs) on data collected once, as env
@@ -224,15 +226,15 @@ def _train_quietly(recipe, log_interval: int) -> list[dict]:
 
 def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
     """Env steps/s and updates/s of ``gcnt train`` over ``steps`` env steps after ``warmup``
-    random ones, one lockstep step per batch. The warm-up covers at least a mini-batch of every
-    robot, so that each timed step is followed by its updates (the schedule waits for full
-    mini-batches: steps before that would count as time without updates)."""
+    random ones, collected in the recipe's own batches (``td3.steps_per_batch`` lockstep steps).
+    The warm-up covers at least a mini-batch of every robot, so that each timed step is followed
+    by its updates (the schedule waits for full mini-batches: steps before that would count as
+    time without updates)."""
     from gcnt.rl.factories import train_robots
 
     warmup = max(warmup, recipe.td3.batch_size * len(train_robots(recipe)))
     recipe.td3.init_random_frames = warmup
     recipe.collector.total_frames = warmup + steps
-    recipe.td3.steps_per_batch = 1
     all_rows = _train_quietly(recipe, max(1, warmup))
     rows = [r for r in all_rows if r["env_steps"] > warmup]
     before = [r for r in all_rows if r["env_steps"] <= warmup]

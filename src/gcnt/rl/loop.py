@@ -445,19 +445,31 @@ def _checkpoint(run: RunDir, algo: Algorithm, env_steps: int) -> None:
 
 
 def _all_finite(state) -> bool:
-    """Whether every floating-point tensor of a (nested) state dict is finite (one device sync)."""
-    flags = []
+    """Whether every floating-point tensor of a (nested) state dict is finite (one device sync).
+
+    First one fused norm per tensor (``torch._foreach_norm``: a non-finite element makes its
+    norm non-finite, so finite norms prove every element finite); only when a norm is not
+    finite (a NaN, an inf, or finite weights so large that the norm overflows) each tensor is
+    checked element by element, which decides."""
+    tensors = []
     stack = [state]
     while stack:
         x = stack.pop()
         if isinstance(x, torch.Tensor):
-            if x.is_floating_point():
-                flags.append(torch.isfinite(x).all())
+            if x.is_floating_point() and x.numel():
+                tensors.append(x)
         elif isinstance(x, dict):
             stack.extend(x.values())
         elif isinstance(x, (list, tuple)):
             stack.extend(x)
-    return not flags or bool(torch.stack(flags).all())
+    if not tensors:
+        return True
+    norms = torch._foreach_norm(tensors)
+    if len({n.dtype for n in norms}) > 1:
+        norms = [n.double() for n in norms]
+    if bool(torch.isfinite(torch.stack(norms)).all()):
+        return True
+    return bool(torch.stack([torch.isfinite(t).all() for t in tensors]).all())
 
 
 def _non_finite(state, prefix: str = "") -> str | None:
