@@ -175,3 +175,24 @@ def test_twin_critics_on_two_threads_make_the_same_updates():
         _double_learner(["compile.twin_threads=true", "network.name=metamorph"])
     with pytest.raises(ValueError, match="twin_threads"):
         load_recipe(QUICK, ["compile.twin_threads=true", "compile.compile=true"])
+    with pytest.raises(ValueError, match="torch_threads"):
+        load_recipe(QUICK, ["compile.twin_threads=true", "compile.torch_threads=2"])
+    with pytest.raises(ValueError, match="torch_threads must be >= 1"):
+        load_recipe(QUICK, ["compile.torch_threads=0"])
+
+
+def test_torch_threads_apply_to_the_run_and_more_than_one_leaves_the_critics_in_turn():
+    from gcnt.rl.loop import prepare
+    from gcnt.rl.td3.twin import InTurn, make_pair_runner
+
+    before = torch.get_num_threads()
+    try:
+        recipe = load_recipe(QUICK, ["compile.torch_threads=1"])
+        prepare(recipe).env.close()
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+    cpu = torch.device("cpu")
+    assert isinstance(make_pair_runner(None, cpu, False, False, torch_threads=2), InTurn)
+    assert isinstance(make_pair_runner(None, cpu, True, False), InTurn)  # compiled
+    assert isinstance(make_pair_runner(None, torch.device("cuda"), False, False), InTurn)

@@ -124,6 +124,8 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
     ``resume``: the run continues its own checkpoint instead."""
     check_logger(recipe)
     check_network(recipe)
+    if recipe.compile.torch_threads is not None:
+        torch.set_num_threads(recipe.compile.torch_threads)
     seed_everything(recipe.seed)
     robots = train_robots(recipe)
     check_eval_robots(recipe, _eval_specs(recipe))  # evaluated at the end: check them first

@@ -112,6 +112,7 @@ class TD3Learner:
             self.device,
             compiled=self.accel.compile or self.accel.cudagraphs,
             dropout=has_dropout(self.critics),
+            torch_threads=self.accel.torch_threads,
         )
         self.critic_step = accelerate(self._critic_step, self.accel, self.device)
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)

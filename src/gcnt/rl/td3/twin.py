@@ -88,13 +88,20 @@ def usable_cpus() -> int:
 
 
 def make_pair_runner(
-    setting: bool | None, device: torch.device, compiled: bool, dropout: bool
+    setting: bool | None,
+    device: torch.device,
+    compiled: bool,
+    dropout: bool,
+    torch_threads: int | None = None,
 ) -> InTurn | AtOnce:
     """``compile.twin_threads``: True -> :class:`AtOnce`, False -> :class:`InTurn`; None (auto)
-    -> :class:`AtOnce` when the update runs eagerly on a CPU with 2 to 4 usable cores and the
-    critics have no active dropout (with more cores torch's own threads are left to use them). Dropout draws from torch's one global generator, and two
-    threads would draw in an order that changes from run to run (a seeded run would not repeat),
-    so ``True`` with dropout is refused."""
+    -> :class:`AtOnce` when the update runs eagerly on a CPU with 2 to 4 usable cores, the
+    critics have no active dropout and ``compile.torch_threads`` is unset or 1 (with more cores,
+    or more intra-op threads asked for, torch's own threads are left to use them).
+
+    Dropout draws from torch's one global generator, and two threads would draw in an order
+    that changes from run to run (a seeded run would not repeat), so ``True`` with dropout is
+    refused."""
     if setting and dropout:
         raise ValueError(
             "compile.twin_threads=true: the critics have dropout, whose random draws two threads "
@@ -102,5 +109,11 @@ def make_pair_runner(
             "leave it unset"
         )
     if setting is None:
-        setting = device.type == "cpu" and not compiled and not dropout and 2 <= usable_cpus() <= 4
+        setting = (
+            device.type == "cpu"
+            and not compiled
+            and not dropout
+            and (torch_threads or 1) == 1
+            and 2 <= usable_cpus() <= 4
+        )
     return AtOnce() if setting else InTurn()
