@@ -196,3 +196,20 @@ def test_torch_threads_apply_to_the_run_and_more_than_one_leaves_the_critics_in_
     assert isinstance(make_pair_runner(None, cpu, False, False, torch_threads=2), InTurn)
     assert isinstance(make_pair_runner(None, cpu, True, False), InTurn)  # compiled
     assert isinstance(make_pair_runner(None, torch.device("cuda"), False, False), InTurn)
+
+
+def test_twin_threads_work_in_a_forked_child():
+    """A process forked after the helper thread started has no helper: it starts its own."""
+    import multiprocessing
+
+    from gcnt.rl.td3.twin import AtOnce
+
+    runner = AtOnce()
+    assert runner.map(abs, (-1, -2)) == [1, 2]
+    ctx = multiprocessing.get_context("fork")
+    out = ctx.Queue()
+    child = ctx.Process(target=lambda: out.put(runner.map(abs, (-3, -4))))
+    child.start()
+    assert out.get(timeout=60) == [3, 4]
+    child.join(timeout=60)
+    assert child.exitcode == 0

@@ -49,9 +49,12 @@ class AtOnce:
 
     def __init__(self) -> None:
         self._pool: ThreadPoolExecutor | None = None
+        self._pid = os.getpid()
 
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
         first, second = items
+        if self._pid != os.getpid():  # a forked child: the parent's helper thread is not here
+            self._pool, self._pid = None, os.getpid()
         if self._pool is None:
             if torch.get_num_threads() != 1:
                 log.info(
@@ -76,8 +79,8 @@ class AtOnce:
             other = future.result()  # waited for even when fn(first) failed
         return [out, other]
 
-    def __getstate__(self) -> dict:  # deep copies (loss shells) start without a pool
-        return {"_pool": None}
+    def __getstate__(self) -> dict:  # copies (loss shells, pickles) start without a pool
+        return {"_pool": None, "_pid": os.getpid()}
 
 
 def usable_cpus() -> int:
