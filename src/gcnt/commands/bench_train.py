@@ -301,7 +301,17 @@ def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
         torch.stack([row["loss_critic"] for row in out]).sum().item()  # wait for the device
         return (time.perf_counter() - t0) / n_updates * 1e3
 
+    threads = torch.get_num_threads()
     out = {"single_ms": time_steps(single.step, batch), "stacked_ms": {}}
+    # the seed's own update may run its twin critics on two threads with one torch thread; the
+    # stacked update (one vmap, as gcnt train --seeds runs it) keeps torch's threads
+    out["single_threads"] = (
+        "twin critics on two threads, 1 torch thread"
+        if single.twin.parallel
+        else f"{threads} torch threads"
+    )
+    torch.set_num_threads(threads)
+    out["stacked_threads"] = threads
     noise = target_noise(batch.get(ACTION), c.policy_noise, c.noise_clip)
     for s in range(1, max_seeds + 1):
         stacked = StackedTD3Learner(learners[:s])
@@ -313,7 +323,6 @@ def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
 
 def run_stacked(args: argparse.Namespace, recipe) -> int:
     """``--stacked-seeds S``: the stacked update against one seed's, in one run."""
-    import torch
 
     from gcnt.recipes import RecipeError
 
@@ -327,7 +336,8 @@ def run_stacked(args: argparse.Namespace, recipe) -> int:
         "network": recipe.network.name,
         "device": recipe.device,
         "batch_size": recipe.td3.batch_size,
-        "threads": torch.get_num_threads(),
+        "single_seed_threads": ms["single_threads"],
+        "stacked_torch_threads": ms["stacked_threads"],
         "single_seed_update_ms": ms["single_ms"],
         "stacked_update_ms": ms["stacked_ms"],
         # time of S seeds' updates made together, in units of one seed's own update
@@ -338,11 +348,12 @@ def run_stacked(args: argparse.Namespace, recipe) -> int:
         return 0
     print(
         f"one seed's own TD3 update: {ms['single_ms']:.2f} ms ({recipe.network.name}, "
-        f"mixed batch of {recipe.td3.batch_size} per robot, {out['threads']} threads)"
+        f"mixed batch of {recipe.td3.batch_size} per robot, {ms['single_threads']})"
     )
     for s, t in ms["stacked_ms"].items():
         print(
-            f"{s} seed(s) stacked: {t:8.2f} ms per update of all of them = "
+            f"{s} seed(s) stacked ({ms['stacked_threads']} torch threads): {t:8.2f} ms per update "
+            "of all of them = "
             f"{out['ratio'][s]:.2f}x one seed's update ({out['ratio'][s] / s:.2f}x per seed)"
         )
     return 0
