@@ -102,8 +102,16 @@ def test_every_help_prints(command, capsys):
 
 
 def test_bench_train_defaults_to_the_quick_start():
+    from gcnt.commands.bench_train import recipe_and_overrides
+
     args = build_parser(only="bench-train").parse_args(["bench-train"])
     assert args.recipe == "recipes/quickstart.yaml" and (ROOT / args.recipe).exists()
+    args = build_parser(only="bench-train").parse_args(["bench-train", "a.b=1", "c=2"])
+    assert recipe_and_overrides(args.recipe, args.overrides) == (
+        "recipes/quickstart.yaml",
+        ["a.b=1", "c=2"],
+    )
+    assert recipe_and_overrides("R.yaml", ["a=1"]) == ("R.yaml", ["a=1"])
 
 
 # ------------------------------------------------------------------ run directories

@@ -65,6 +65,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
+def recipe_and_overrides(recipe: str, overrides: list[str]) -> tuple[str, list[str]]:
+    """``gcnt bench-train key=value ...`` without a recipe: the quick start with those
+    overrides (argparse takes the first word for the optional recipe)."""
+    if "=" in recipe and not Path(recipe).exists():
+        return DEFAULT_RECIPE, [recipe, *overrides]
+    return recipe, list(overrides)
+
+
 def matmul_peak_gflops(size: int = 1024, repeats: int = 5) -> float:
     """GFLOP/s of the best of ``repeats`` float32 ``size`` × ``size`` matrix products on torch's
     threads as configured: the arithmetic limit the updates are measured against."""
@@ -250,8 +258,7 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
 def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
 
-    if "=" in args.recipe and not Path(args.recipe).exists():  # only overrides were given
-        args.overrides, args.recipe = [args.recipe, *args.overrides], DEFAULT_RECIPE
+    args.recipe, args.overrides = recipe_and_overrides(args.recipe, args.overrides)
     recipe = load_recipe(args.recipe, args.overrides)
     if not args.json:
         print(f"recipe: {args.recipe} ({recipe.algo}, {recipe.network.name})")
