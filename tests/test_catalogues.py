@@ -87,12 +87,16 @@ def test_folders_and_splits(tmp_path):
 def test_name_patterns_pick_robots_in_catalogue_order():
     kin = [r.name for r in resolve_robots(["unimal_000?-[lr]*"])]
     assert len(kin) == 40 and kin[:4] == [
-        "unimal_0000-length1", "unimal_0000-length2", "unimal_0000-range1", "unimal_0000-range2"
+        "unimal_0000-length1",
+        "unimal_0000-length2",
+        "unimal_0000-range1",
+        "unimal_0000-range2",
     ]
     dyn = {r.name.split("-")[1] for r in resolve_robots(["unimal_000?-[adg]*"])}
     assert dyn == {"armature1", "damping1", "gear1", "density1"}
     assert [r.name for r in resolve_robots(["walker_?_main"])][:2] == [
-        "walker_2_main", "walker_3_main"
+        "walker_2_main",
+        "walker_3_main",
     ]
     with pytest.raises(UnknownRobotError, match="no robot name matches"):
         resolve_robots(["nothing_like_this_*"])

@@ -309,9 +309,8 @@ PPO_RECIPES = sorted(
 def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
     """Each PPO recipe (its world, height map and method) on two robots (SR: one, since its MLP
     is one network per robot), a few steps."""
-    from gcnt.rl.loop import train
-
     from gcnt.morphology.catalogues import resolve_robots
+    from gcnt.rl.loop import train
 
     own = load_recipe(path)
     single = own.network.name == "sr"
