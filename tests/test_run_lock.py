@@ -37,18 +37,23 @@ eval: {{episodes: 1, interval: 0}}
 checkpoint_interval: 1000000
 """
 
+# holds the lock until its stdin closes (the test kills it first; a failed test's end closes
+# the pipe), so no stand-in outlives the test by a fixed sleep
 HOLD = """
-import sys, time
+import sys
 from gcnt.rl.run_lock import run_lock
 with run_lock(sys.argv[1]):
     print("held", flush=True)
-    time.sleep(120)
+    sys.stdin.read()
 """
 
 
 def _holding_process(run: Path) -> subprocess.Popen:
     proc = subprocess.Popen(
-        [sys.executable, "-c", HOLD, str(run)], stdout=subprocess.PIPE, text=True
+        [sys.executable, "-c", HOLD, str(run)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
     )
     assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
     return proc

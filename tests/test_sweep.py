@@ -217,9 +217,9 @@ def test_a_task_at_the_time_limit_stops_its_trainer_and_resubmits_itself(tmp_pat
     spec = _spec(tmp_path, job_id="7_0")
     task = S.SweepTask(grace_s=20)
     stand_in = (
-        "import signal, sys, time; "
+        "import signal, sys; "
         "signal.signal(signal.SIGUSR2, lambda *a: sys.exit(75)); print('up', flush=True); "
-        "time.sleep(60)"
+        "signal.pause()"  # until the signal: nothing waits out a fixed sleep
     )
     task._proc = subprocess.Popen([sys.executable, "-c", stand_in], stdout=subprocess.PIPE)
     assert task._proc.stdout.readline().strip() == b"up"
