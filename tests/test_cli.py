@@ -9,6 +9,7 @@ import logging
 from pathlib import Path
 
 import pytest
+from cli_helpers import error_line, tiny_td3_recipe
 
 from gcnt.cli import COMMANDS, build_parser
 from gcnt.cli import main as gcnt
@@ -20,47 +21,16 @@ QUICKSTARTS = (
     ROOT / "recipes" / "unimal" / "quickstart.yaml",
 )
 
-#: a recipe that trains a tiny GCNT on hopper_3 in a few seconds (progress bar asked for)
-TINY = """\
-base: {root}/recipes/smpenv/_td3.yaml
-task: tiny
-env: {{robots: [hopper_3], test_robots: [hopper_4], max_episode_steps: 15}}
-collector: {{total_frames: 40}}
-td3: {{init_random_frames: 20, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
-      updates_per_step: 0.25}}
-network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
-logger: {{backend: none, progress: true, log_interval: 20}}
-eval: {{episodes: 1, interval: 0, robots: [hopper_3]}}
-checkpoint_interval: 20
-"""
-
 
 @pytest.fixture(scope="module")
 def recipe_file(tmp_path_factory) -> Path:
+    """The tiny recipe with a progress bar asked for and one robot to evaluate."""
     path = tmp_path_factory.mktemp("recipe") / "tiny.yaml"
-    path.write_text(TINY.format(root=ROOT))
-    return path
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory, recipe_file) -> Path:
-    """A finished tiny run (never modified by the tests: copy it first)."""
-    run = tmp_path_factory.mktemp("trained") / "run"
-    assert gcnt(["train", str(recipe_file), f"run_dir={run}"]) == 0
-    return run
+    return tiny_td3_recipe(path, progress=True, eval_robots=["hopper_3"])
 
 
 def _files(run: Path) -> dict[str, bytes]:
     return {str(p.relative_to(run)): p.read_bytes() for p in sorted(run.rglob("*")) if p.is_file()}
-
-
-def _one_error_line(capsys, argv: list[str]) -> str:
-    capsys.readouterr()
-    assert gcnt(argv) == 2, argv
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.startswith("gcnt ")]
-    assert "Traceback" not in err and len(lines) == 1, err
-    return lines[0]
 
 
 # ------------------------------------------------------------------ options and overrides mixed
@@ -129,10 +99,10 @@ def test_a_misspelt_run_directory_gets_the_real_one(tmp_path, monkeypatch, capsy
         ["eval", "runs/Walker++/td3-gcnt/seed0"],
         ["train", "--resume", "runs/Walker++/td3-gcnt/seed0"],
     ):
-        line = _one_error_line(capsys, argv)
+        line = error_line(capsys, argv)
         assert "runs/Walker++/td3-gcnt/seed0 does not exist" in line
         assert "did you mean 'runs/Walkerpp/td3-gcnt/seed0'" in line
-    line = _one_error_line(capsys, ["eval", "elsewhere/seed0"])
+    line = error_line(capsys, ["eval", "elsewhere/seed0"])
     assert "elsewhere/seed0 does not exist" in line and "did you mean" not in line
     # the analysis commands read run or sweep directories the same way (and log their one line)
     capsys.readouterr()
@@ -143,9 +113,9 @@ def test_a_misspelt_run_directory_gets_the_real_one(tmp_path, monkeypatch, capsy
 
 
 def test_a_robot_of_another_benchmark_is_one_line(trained, capsys):
-    line = _one_error_line(capsys, ["eval", str(trained), "--robots", "unimal_0000"])
+    line = error_line(capsys, ["eval", str(trained), "--robots", "unimal_0000"])
     assert "'unimal_0000' is a unimal robot" in line and "smpenv run" in line
-    line = _one_error_line(capsys, ["train", "recipes/quickstart.yaml", "env.robots=[unimal_0000]"])
+    line = error_line(capsys, ["train", "recipes/quickstart.yaml", "env.robots=[unimal_0000]"])
     assert "env.robots: robot 'unimal_0000' is a unimal robot" in line
 
 

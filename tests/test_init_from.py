@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from cli_helpers import error_line
 
 from gcnt.cli import main as gcnt
 from gcnt.recipes import load_recipe
@@ -95,15 +96,6 @@ def _learner(run: Path) -> dict:
 
 def _same(a: dict, b: dict) -> bool:
     return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
-
-
-def _one_error_line(capsys, argv: list[str]) -> str:
-    capsys.readouterr()
-    assert gcnt(argv) == 2, argv
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.startswith("gcnt ")]
-    assert "Traceback" not in err and len(lines) == 1, err
-    return lines[0]
 
 
 def _record(source: Path) -> dict:
@@ -200,7 +192,7 @@ def test_ppo_starts_from_the_trained_networks_and_observation_statistics(
 
 
 def test_ppo_observation_normalisation_must_match(ppo_source, ppo_file, capsys, tmp_path):
-    line = _one_error_line(
+    line = error_line(
         capsys,
         ["train", str(ppo_file), "--init-from", str(ppo_source), "ppo.obs_norm=false",
          f"run_dir={tmp_path / 'x'}"],
@@ -230,7 +222,7 @@ def test_a_run_that_does_not_fit_is_one_line_naming_both_sides(
 ):
     run = tmp_path / "x"
     argv = ["train", str(td3_file), "--init-from", str(td3_source), f"run_dir={run}", *overrides]
-    line = _one_error_line(capsys, argv)
+    line = error_line(capsys, argv)
     assert f"init_from {td3_source}" in line
     assert all(side in line for side in sides), line
     assert not run.exists()  # refused before the run directory is made
@@ -250,7 +242,7 @@ def test_a_token_width_that_does_not_fit_names_the_tensor_and_both_shapes(
     actor[key] = torch.zeros(rows, cols + 1)
     torch.save(state, path)
     argv = ["train", str(td3_file), "--init-from", str(source), f"run_dir={tmp_path / 'x'}"]
-    line = _one_error_line(capsys, argv)
+    line = error_line(capsys, argv)
     assert "TD3 actor" in line and key in line
     assert f"[{rows}, {cols + 1}] in the checkpoint" in line
     assert f"[{rows}, {cols}] in the network" in line
@@ -259,10 +251,10 @@ def test_a_token_width_that_does_not_fit_names_the_tensor_and_both_shapes(
 def test_init_from_is_refused_with_resume_and_a_missing_run_is_named(
     td3_source, td3_file, capsys, tmp_path
 ):
-    line = _one_error_line(
+    line = error_line(
         capsys, ["train", "--resume", str(td3_source), "--init-from", str(td3_source)]
     )
     assert "--init-from" in line and "--resume" in line
     missing = str(td3_source) + "x"
-    line = _one_error_line(capsys, ["train", str(td3_file), "--init-from", missing])
+    line = error_line(capsys, ["train", str(td3_file), "--init-from", missing])
     assert missing in line and "does not exist" in line and repr(str(td3_source)) in line

@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
+from cli_helpers import error_line
 
 from gcnt.cli import main as gcnt
 from gcnt.envs.mjcf3d import ACTION_SLOTS, CONTEXT_DIM, OBS_DIM, Mjcf3dEnv
@@ -82,17 +83,6 @@ def write(tmp_path: Path, text: str, name: str = "tripod.xml") -> Path:
     path = tmp_path / name
     path.write_text(text)
     return path
-
-
-def error_line(capsys, argv: list[str]) -> str:
-    """Run gcnt; it must exit 2 with exactly one error line and no traceback."""
-    capsys.readouterr()
-    assert gcnt(argv) == 2, argv
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = [line for line in err.splitlines() if line.startswith("gcnt ")]
-    assert len(lines) == 1 and ": error: " in lines[0], err
-    return lines[0]
 
 
 # ------------------------------------------------------------------ the family from the structure

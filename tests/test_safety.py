@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from cli_helpers import error_line
 
 from gcnt.cli import main as gcnt
 from gcnt.morphology import morphologies_dir
@@ -32,51 +33,11 @@ from gcnt.rl.run_dir import (
 
 ROOT = Path(__file__).parents[1]
 
-#: a recipe that trains a tiny GCNT on hopper_3 in a few seconds
-TINY_RECIPE = """\
-base: {root}/recipes/smpenv/_td3.yaml
-task: tiny
-env: {{robots: [hopper_3], test_robots: [hopper_4], max_episode_steps: 15}}
-collector: {{total_frames: 40}}
-td3: {{init_random_frames: 20, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
-      updates_per_step: 0.25}}
-network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
-logger: {{backend: none, progress: false, log_interval: 20}}
-eval: {{episodes: 1, interval: 0}}
-checkpoint_interval: 20
-"""
-
-
-@pytest.fixture(scope="module")
-def recipe_file(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("recipe") / "tiny.yaml"
-    path.write_text(TINY_RECIPE.format(root=ROOT))
-    return path
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory, recipe_file) -> Path:
-    """A finished tiny run (never modified by the tests: copy it first)."""
-    run = tmp_path_factory.mktemp("trained") / "run"
-    assert gcnt(["train", str(recipe_file), f"run_dir={run}"]) == 0
-    return run
-
 
 def copy_run(run: Path, tmp_path: Path) -> Path:
     out = tmp_path / "run"
     shutil.copytree(run, out)
     return out
-
-
-def error_line(capsys, argv: list[str]) -> str:
-    """Run gcnt; it must exit 2 with exactly one error line and no traceback."""
-    capsys.readouterr()
-    assert gcnt(argv) == 2, argv
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = [line for line in err.splitlines() if line.startswith("gcnt ")]
-    assert len(lines) == 1 and ": error: " in lines[0], err
-    return lines[0]
 
 
 # ------------------------------------------------------------------ safe checkpoint loading

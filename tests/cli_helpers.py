@@ -1,0 +1,56 @@
+"""What the command-line tests share: a tiny TD3 recipe that trains in a few seconds, and the
+check that a mistake is exactly one error line (exit code 2, no traceback). The module-scoped
+``recipe_file`` and ``trained`` fixtures built on them are in ``conftest.py``."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from gcnt.cli import main as gcnt
+
+ROOT = Path(__file__).parents[1]
+
+TINY_TD3 = """\
+base: {root}/recipes/smpenv/_td3.yaml
+task: tiny
+env: {{robots: [hopper_3], test_robots: [{test_robots}], max_episode_steps: 15}}
+collector: {{total_frames: 40}}
+td3: {{init_random_frames: 20, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
+      updates_per_step: 0.25}}
+network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
+logger: {{backend: none, progress: {progress}, log_interval: 20}}
+eval: {{episodes: 1, interval: 0{eval_robots}}}
+checkpoint_interval: 20
+"""
+
+
+def tiny_td3_recipe(
+    path: Path,
+    *,
+    test_robots: Sequence[str] = ("hopper_4",),
+    progress: bool = False,
+    eval_robots: Sequence[str] | None = None,
+) -> Path:
+    """Write, at ``path``, a recipe that trains a tiny GCNT on hopper_3 for 40 steps
+    (checkpoints every 20)."""
+    path.write_text(
+        TINY_TD3.format(
+            root=ROOT,
+            test_robots=", ".join(test_robots),
+            progress=str(progress).lower(),
+            eval_robots="" if eval_robots is None else f", robots: [{', '.join(eval_robots)}]",
+        )
+    )
+    return path
+
+
+def error_line(capsys, argv: list[str]) -> str:
+    """Run gcnt; it must exit 2 with exactly one error line and no traceback."""
+    capsys.readouterr()
+    assert gcnt(argv) == 2, argv
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.startswith("gcnt ")]
+    assert len(lines) == 1 and ": error: " in lines[0], err
+    return lines[0]
