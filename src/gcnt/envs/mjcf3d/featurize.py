@@ -200,17 +200,9 @@ class Mjcf3dFeaturizer(Featurizer):
         self._maskf = self.mask.astype(np.float64)
         self._terrains = None
         if terrain_of is not None:
-            terrains = [terrain_of(mdl) for mdl in models]
-            self._origin = terrains[0].origin
-            shape = {tr.grid.shape for tr in terrains}
-            if len(shape) != 1:
-                raise ValueError(f"the sub-envs' terrains differ in size: {sorted(shape)}")
-            # one array of all lookup tables, each terrain's ``grid`` a view into it (its redraws
-            # write in place), so that height_map reads every sub-env with one np.take
-            self._tables = np.stack([tr.grid for tr in terrains])
-            for j, tr in enumerate(terrains):
-                tr.grid = self._tables[j]
-            self._terrains = terrains
+            self._terrains = [terrain_of(mdl) for mdl in models]
+            self._origin = self._terrains[0].origin
+            self._tables = H.stack_terrains(self._terrains)
             self._hwork = H.Workspace.empty(n)
 
     @property

@@ -186,14 +186,7 @@ class UnimalFeaturizer(Featurizer):
         if terrain_of is not None:
             self._terrains = [terrain_of(mdl) for mdl in models]
             self._origin = self._terrains[0].origin
-            # one array of all lookup tables, each terrain's ``grid`` a view into it (its redraws
-            # write in place), so the height map reads every sub-env with one np.take
-            shape = {tr.grid.shape for tr in self._terrains}
-            if len(shape) != 1:
-                raise ValueError(f"the sub-envs' terrains differ in size: {sorted(shape)}")
-            self._tables = np.stack([tr.grid for tr in self._terrains])
-            for j, tr in enumerate(self._terrains):
-                tr.grid = self._tables[j]
+            self._tables = H.stack_terrains(self._terrains)
             self._hwork = H.Workspace.empty(n)
             self._hmap = np.empty((n, H.HFIELD_DIM), np.float32)
         self._out64 = np.empty((n, k, OBS_DIM))

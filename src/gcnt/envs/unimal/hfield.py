@@ -115,6 +115,19 @@ class Workspace:
         return Workspace(self.cells[lo:hi], self.col[lo:hi], self.flat[lo:hi])
 
 
+def stack_terrains(terrains: list) -> np.ndarray:
+    """All sub-envs' terrain lookup tables (``Terrain.grid``, one shape) as one array
+    [n, *grid]; each terrain's ``grid`` becomes a view into it, so that its redraws (written in
+    place) show there and :func:`height_map` reads every sub-env with one ``np.take``."""
+    shape = {tr.grid.shape for tr in terrains}
+    if len(shape) != 1:
+        raise ValueError(f"the sub-envs' terrains differ in size: {sorted(shape)}")
+    tables = np.stack([tr.grid for tr in terrains])
+    for j, tr in enumerate(terrains):
+        tr.grid = tables[j]
+    return tables
+
+
 def height_map(
     xy: np.ndarray,
     heading: np.ndarray,
