@@ -615,10 +615,10 @@ def test_a_robot_pool_on_mt_keeps_one_terrain_per_sub_env(robots):
     env.use_robot_pool(robots, lambda rows: np.array(next(order)[: len(rows)]))
     for _ in range(18):
         td = env.reset()
-        assert len(env._terrains) == 2
+        assert len(env._terrains.by_model) == 2
         models = [env.sim(i)[0] for i in range(2)]
         assert models[0] is not models[1]
-        assert {id(m) for m in models} == set(env._terrains)
+        assert {id(m) for m in models} == set(env._terrains.by_model)
     for i in range(2):  # the height map reads the sub-env's own terrain table
         assert env.task_rules(i).terrain.grid.base is env._featurizer._tables
     assert torch.isfinite(td["hfield"]).all()

@@ -22,7 +22,6 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 
-import mujoco
 import torch
 
 from gcnt.envs.base import BatchedMujocoEnv
@@ -32,6 +31,7 @@ from gcnt.envs.mjcf3d.rules import Mjcf3dRules, fall_height
 from gcnt.envs.mjcf3d.world import TIMESTEP, world_model
 from gcnt.envs.unimal.hfield import HFIELD_DIM
 from gcnt.envs.unimal.worlds import WORLDS as UNIMAL_WORLDS
+from gcnt.envs.unimal.worlds import TerrainsByModel
 from gcnt.morphology import Robot
 
 __all__ = [
@@ -85,29 +85,18 @@ class Mjcf3dEnv(BatchedMujocoEnv):
         if bad:
             raise ValueError(f"Mjcf3dEnv takes general 3-D (mjcf3d) robots only; not: {bad}")
         self.world = world
-        # The rules of each sub-env own its terrain; the featuriser finds it by model.
-        terrains: dict[int, object] = {}
-
-        def rules(robot: Robot, model: mujoco.MjModel, dt: float) -> Mjcf3dRules:
-            rl = Mjcf3dRules(robot, model, dt, world)
-            if rl.terrain is not None:
-                terrains[id(model)] = rl.terrain
-            return rl
-
-        height_map = UNIMAL_WORLDS[world].height_map
-        terrain_of = (lambda model: terrains[id(model)]) if height_map else None
+        terrains = TerrainsByModel()
+        terrain_of = terrains.terrain_of if UNIMAL_WORLDS[world].height_map else None
 
         def featurizer(robots: Sequence[Robot], models, k: int) -> Mjcf3dFeaturizer:
-            live = {id(m) for m in models}  # a robot pool swaps models: forget the gone ones
-            for key in [key for key in terrains if key not in live]:
-                del terrains[key]
+            terrains.keep(models)
             return Mjcf3dFeaturizer(robots, models, k, terrain_of=terrain_of)
 
         super().__init__(
             robots,
             max_limbs,
             featurizer=featurizer,
-            rules=rules,
+            rules=terrains.recording(lambda robot, model, dt: Mjcf3dRules(robot, model, dt, world)),
             action_slots=ACTION_SLOTS,
             frame_skip=frame_skip,
             max_episode_steps=max_episode_steps,

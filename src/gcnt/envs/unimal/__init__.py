@@ -21,7 +21,6 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 
-import mujoco
 import torch
 
 from gcnt.envs.base import BatchedMujocoEnv, PhysicsBlowupWarning
@@ -29,7 +28,7 @@ from gcnt.envs.benchmark import Benchmark
 from gcnt.envs.unimal.featurize import ACTION_SLOTS, CONTEXT_DIM, OBS_DIM, UnimalFeaturizer
 from gcnt.envs.unimal.hfield import HFIELD_DIM
 from gcnt.envs.unimal.rules import UnimalRules, fall_threshold
-from gcnt.envs.unimal.worlds import WORLDS, world_model
+from gcnt.envs.unimal.worlds import WORLDS, TerrainsByModel, world_model
 from gcnt.morphology import Robot
 
 __all__ = [
@@ -85,30 +84,20 @@ class UnimalEnv(BatchedMujocoEnv):
             raise ValueError(f"UnimalEnv takes UNIMAL robots only; not UNIMAL: {bad}")
         self.world = world
         spec = WORLDS[world]
-        # The rules of each sub-env own its terrain; the featuriser finds it by model.
-        self._terrains: dict[int, object] = {}
-        terrains = self._terrains
-
-        def rules(robot: Robot, model: mujoco.MjModel, dt: float) -> UnimalRules:
-            rl = UnimalRules(robot, model, dt, world)
-            if rl.terrain is not None:
-                terrains.setdefault(id(model), rl.terrain)
-            return rl
-
-        terrain_of = (lambda model: terrains[id(model)]) if spec.height_map else None
+        self._terrains = TerrainsByModel()
+        terrain_of = self._terrains.terrain_of if spec.height_map else None
 
         def featurizer(robots: Sequence[Robot], models, k: int) -> UnimalFeaturizer:
-            # a robot pool swaps sub-envs' models: forget the terrains of models gone
-            live = {id(m) for m in models}
-            for key in [key for key in terrains if key not in live]:
-                del terrains[key]
+            self._terrains.keep(models)
             return UnimalFeaturizer(robots, models, k, terrain_of=terrain_of)
 
         super().__init__(
             robots,
             max_limbs,
             featurizer=featurizer,
-            rules=rules,
+            rules=self._terrains.recording(
+                lambda robot, model, dt: UnimalRules(robot, model, dt, world)
+            ),
             action_slots=ACTION_SLOTS,
             frame_skip=frame_skip,
             max_episode_steps=max_episode_steps,

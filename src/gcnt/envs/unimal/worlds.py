@@ -243,3 +243,34 @@ def world_model(robot: Robot, world: str) -> mujoco.MjModel:
             "count (the robot file must hold one robot and no other bodies)"
         )
     return model
+
+
+class TerrainsByModel:
+    """Which terrain each sub-env's model stands on, for a featuriser that reads height maps.
+
+    Each sub-env's task rules own its terrain (they redraw it per episode); :meth:`recording`
+    wraps a rules factory so that the first rules built for a model register their terrain, and
+    the featuriser looks it up by model (:meth:`terrain_of`). The first registration wins: rules
+    built later for the same model (e.g. ``gcnt bench-env``'s raw loop) must not take the env's
+    terrain away. A robot pool swaps sub-envs' models: :meth:`keep` forgets the others.
+    """
+
+    def __init__(self) -> None:
+        self.by_model: dict[int, object] = {}
+
+    def recording(self, make_rules):
+        def rules(robot: Robot, model: mujoco.MjModel, dt: float):
+            rl = make_rules(robot, model, dt)
+            if rl.terrain is not None:
+                self.by_model.setdefault(id(model), rl.terrain)
+            return rl
+
+        return rules
+
+    def terrain_of(self, model: mujoco.MjModel) -> object:
+        return self.by_model[id(model)]
+
+    def keep(self, models) -> None:
+        live = {id(m) for m in models}
+        for key in [key for key in self.by_model if key not in live]:
+            del self.by_model[key]
