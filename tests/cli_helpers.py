@@ -1,6 +1,7 @@
-"""What the command-line tests share: a tiny TD3 recipe that trains in a few seconds, and the
-check that a mistake is exactly one error line (exit code 2, no traceback). The module-scoped
-``recipe_file`` and ``trained`` fixtures built on them are in ``conftest.py``."""
+"""What the command-line tests share: a tiny TD3 recipe that trains in a few seconds, the
+quick-start overrides of a tiny sweep run, and the check that a mistake is exactly one error
+line (exit code 2, no traceback). The module-scoped ``recipe_file`` and ``trained`` fixtures
+built on them are in ``conftest.py``."""
 
 from __future__ import annotations
 
@@ -23,6 +24,22 @@ logger: {{backend: none, progress: {progress}, log_interval: 20}}
 eval: {{episodes: 1, interval: 0{eval_robots}}}
 checkpoint_interval: 20
 """
+
+
+#: overrides of the quick start for a sweep run of seconds on hopper_3: 200 random steps, then
+#: 100 with updates, a checkpoint every 100
+TINY_SWEEP_OVERRIDES = [
+    "collector.total_frames=300",
+    "td3.init_random_frames=200",
+    "checkpoint_interval=100",
+    "env.robots=[hopper_3]",
+    "env.test_robots=[hopper_4]",
+    "env.max_episode_steps=50",
+    "eval.episodes=1",
+    "logger.log_interval=100",
+    "logger.progress=false",
+    "network.kwargs={d_model: 8, layers: 1, ff: 16, heads: 2}",
+]
 
 
 def tiny_td3_recipe(

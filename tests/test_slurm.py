@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from cli_helpers import TINY_SWEEP_OVERRIDES
 
 from gcnt import sweep as S
 from gcnt.analysis.runs import Run
@@ -29,19 +30,11 @@ pytestmark = [pytest.mark.slurm, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICKSTART = ROOT / "recipes" / "quickstart.yaml"
-#: a run of seconds: 200 random steps, then 100 with updates; no checkpoint before its end
+#: a run of seconds (200 random steps, then 100 with updates), no checkpoint before its end
 TINY = [
-    "collector.total_frames=300",
-    "td3.init_random_frames=200",
+    *(o for o in TINY_SWEEP_OVERRIDES if not o.startswith("checkpoint_interval=")),
     "checkpoint_interval=100000",
-    "env.robots=[hopper_3]",
-    "env.test_robots=[hopper_4]",
-    "env.max_episode_steps=50",
-    "eval.episodes=1",
-    "logger.log_interval=100",
-    "logger.progress=false",
     "logger.backend=none",
-    "network.kwargs={d_model: 8, layers: 1, ff: 16, heads: 2}",
 ]
 
 

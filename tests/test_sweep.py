@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from cli_helpers import TINY_SWEEP_OVERRIDES
 
 from gcnt import sweep as S
 from gcnt.analysis.runs import Run, find_runs
@@ -18,19 +19,7 @@ from gcnt.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICKSTART = ROOT / "recipes" / "quickstart.yaml"
-# a tiny run of one small robot: 200 random steps, then 100 with updates
-TINY = [
-    "collector.total_frames=300",
-    "td3.init_random_frames=200",
-    "checkpoint_interval=100",
-    "env.robots=[hopper_3]",
-    "env.test_robots=[hopper_4]",
-    "env.max_episode_steps=50",
-    "eval.episodes=1",
-    "logger.log_interval=100",
-    "logger.progress=false",
-    "network.kwargs={d_model: 8, layers: 1, ff: 16, heads: 2}",
-]
+TINY = TINY_SWEEP_OVERRIDES
 
 
 def test_expand_gives_every_run_an_explicit_dir_and_the_sweep_group(tmp_path: Path) -> None:
