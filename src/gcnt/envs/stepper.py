@@ -40,6 +40,14 @@ TUNE_MAX_PERIOD = 1600
 TUNE_PROBE = 8
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity set; all of them where there is none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def median(values) -> float:
     return float(np.median(np.fromiter(values, float)))
 
@@ -150,10 +158,7 @@ class ThreadedPhysics:
         n = len(self._sims)
         self._auto = num_threads is None
         if num_threads is None:
-            try:
-                num_threads = len(os.sched_getaffinity(0))
-            except AttributeError:  # not on Linux
-                num_threads = os.cpu_count() or 1
+            num_threads = usable_cpus()
         self.num_threads = max(1, min(int(num_threads), n))
         self._auto = self._auto and self.num_threads > 1
         if self.num_threads > 1:

@@ -4,7 +4,7 @@ TD3's two critics (and its two target critics) are independent networks of the s
 same calls on the same batch with different weights. On a CPU whose update is bound by the cost
 of many small kernels, not by arithmetic, torch's own intra-op threads barely help (each kernel
 is too small to split), while running the two critics at once, each on one core, made the critic
-step 1.3x (quick start) to 1.5x (Walker++ at the paper's sizes) faster than in turn on one core,
+step 1.3x (quick start) and 1.4-1.6x (Walker++ at the paper's sizes) faster than in turn on one core,
 on a 2-core AMD EPYC: torch releases the GIL inside its kernels, and the autograd engine runs
 ``backward`` calls of disjoint graphs from two threads concurrently. Each critic's operations are the same, in the
 same order, as when they run in turn.
@@ -22,6 +22,8 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import torch
+
+from gcnt.envs.stepper import usable_cpus
 
 log = logging.getLogger(__name__)
 
@@ -81,13 +83,6 @@ class AtOnce:
 
     def __getstate__(self) -> dict:  # copies (loss shells, pickles) start without a pool
         return {"_pool": None, "_pid": os.getpid()}
-
-
-def usable_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def make_pair_runner(
