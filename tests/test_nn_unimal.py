@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 import torch
@@ -278,3 +279,19 @@ def test_context_width_is_read_from_the_table():
     net = make_network("modumorph", "ppo_critic", table=table, **UNIMAL, **small("modumorph"))
     assert net["hn_context"].module.net[0].in_features == C_UNIMAL
     assert count_parameters(net) > 0
+
+
+def test_params_command_at_a_recipes_sizes_compares_the_ratios_with_the_papers_sizes(capsys):
+    """The re-run UNIMAL study keeps the paper's proportions (within 10%); the first study's
+    reduction did not (ModuMorph / GCNT 3.04 against 1.56)."""
+    from gcnt.commands import params
+
+    root = Path(__file__).resolve().parents[1] / "recipes" / "studies"
+    methods = "gcnt,modumorph,metamorph"
+    params.run_recipe(str(root / "ft-fair.yaml"), methods)
+    fair = capsys.readouterr().out
+    assert "ModuMorph/GCNT (actor + critic): 1.473" in fair
+    assert "NOT within" not in fair and fair.count("within 10%") == 2
+    params.run_recipe(str(root / "ft.yaml"), methods)
+    first = capsys.readouterr().out
+    assert "ModuMorph/GCNT (actor + critic): 3.041" in first and "NOT within 10%" in first

@@ -58,7 +58,7 @@ class CollectorConfig:
 @dataclass
 class NetworkConfig:
     #: the method: gcnt | amorpheus | swat | smp | mlp | ... (``gcnt params`` lists them;
-    #: ablations gcnt_no_gcn, gcnt_no_wl, gcnt_no_dist)
+    #: ablations gcnt_no_gcn, gcnt_no_wl, gcnt_no_dist, gcnt_dist_first)
     name: str = "gcnt"
     #: size preset: smpenv (paper appendix table 1) or unimal (table 3); unset: the benchmark's
     preset: str | None = None

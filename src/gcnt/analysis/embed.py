@@ -21,7 +21,14 @@ import numpy as np
 from gcnt.analysis.runs import AnalysisError, Run
 
 #: methods whose chains carry a structural vector per limb
-STRUCTURAL_METHODS = ("gcnt", "gcnt_no_gcn", "gcnt_no_wl", "gcnt_no_dist", "swat")
+STRUCTURAL_METHODS = (
+    "gcnt",
+    "gcnt_no_gcn",
+    "gcnt_no_wl",
+    "gcnt_no_dist",
+    "gcnt_dist_first",
+    "swat",
+)
 DEFAULT_ROBOTS = ("CWHH++:all",)
 
 

@@ -34,6 +34,7 @@ the numbers reveal it:
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -168,19 +169,32 @@ def network_kwargs(setup: Setup, table, hfield: int) -> dict:
     )
 
 
-def count_table(benchmark: str = "smpenv") -> list[dict]:
-    """One row per (world, method): actor, critic, their sum and the paper's number (or None)."""
+def count_table(
+    benchmark: str = "smpenv",
+    sizes: Callable[[str], dict] | None = None,
+    worlds: Sequence[str] | None = None,
+    methods: Sequence[str] | None = None,
+) -> list[dict]:
+    """One row per (world, method): actor, critic, their sum and the paper's number (or None).
+
+    ``sizes(method)``: that method's overrides of the preset (a recipe's ``network.kwargs``),
+    default none (the paper's sizes); ``worlds``: only these (case-insensitive); ``methods``:
+    instead of the benchmark's column list."""
     setup = setup_of(benchmark)
     algo = ALGORITHM.get(setup.benchmark, "ppo")
     table = counting_table(setup)
     paper = PAPER.get(setup.benchmark, {})
+    wanted = None if worlds is None else {w.lower() for w in worlds}
     rows = []
     for world, hfield in setup.worlds:
+        if wanted is not None and world.lower() not in wanted:
+            continue
         col = paper.get(_PAPER_WORLD.get(world.lower(), world), {})
         kw = network_kwargs(setup, table, hfield)
-        for name in METHODS.get(setup.benchmark, METHODS["unimal"]):
-            actor = count_parameters(make_network(name, f"{algo}_actor", **kw))
-            critic = count_parameters(make_network(name, f"{algo}_critic", **kw))
+        for name in methods or METHODS.get(setup.benchmark, METHODS["unimal"]):
+            over = sizes(name) if sizes is not None else {}
+            actor = count_parameters(make_network(name, f"{algo}_actor", **kw, **over))
+            critic = count_parameters(make_network(name, f"{algo}_critic", **kw, **over))
             rows.append(
                 {
                     "world": world,
@@ -194,16 +208,20 @@ def count_table(benchmark: str = "smpenv") -> list[dict]:
     return rows
 
 
+#: (label, numerator, denominator) of the size ratios that decide whether a comparison is fair
+RATIOS = (
+    ("ModuMorph/GCNT", "modumorph", "gcnt"),
+    ("MetaMorph/GCNT", "metamorph", "gcnt"),
+    ("GCNT/MetaMorph*", "gcnt", "metamorph_star"),
+    ("GCNT/AMORPHEUS", "gcnt", "amorpheus"),
+)
+
+
 def ratios(rows: list[dict], world: str) -> dict[str, tuple[float, float | None]]:
-    """ModuMorph/GCNT and GCNT/MetaMorph* (actor + critic), ours and the paper's."""
+    """The :data:`RATIOS` of the methods in ``rows`` (actor + critic), ours and the paper's."""
     by = {r["method"]: r for r in rows if r["world"] == world}
-    pairs = (
-        ("ModuMorph/GCNT", "modumorph", "gcnt"),
-        ("GCNT/MetaMorph*", "gcnt", "metamorph_star"),
-        ("GCNT/AMORPHEUS", "gcnt", "amorpheus"),
-    )
     out = {}
-    for label, a, b in pairs:
+    for label, a, b in RATIOS:
         if a in by and b in by:
             pa, pb = by[a]["paper"], by[b]["paper"]
             out[label] = (by[a]["total"] / by[b]["total"], pa / pb if pa and pb else None)

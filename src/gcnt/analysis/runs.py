@@ -34,6 +34,7 @@ METHOD_ORDER = (
     "gcnt_no_gcn",
     "gcnt_no_wl",
     "gcnt_no_dist",
+    "gcnt_dist_first",
     "swat",
     "amorpheus",
     "smp",

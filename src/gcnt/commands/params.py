@@ -3,6 +3,12 @@ appendix tables 7 (SMPENV) and 8 (UNIMAL); what the counts cover is in :mod:`gcn
 
 gcnt params                        SMPENV: TD3 actor / critic at the SMPENV preset
 gcnt params --benchmark unimal     UNIMAL: PPO actor / critic at the UNIMAL preset, per world
+gcnt params --recipe R.yaml [--methods a,b]
+                                   the recipe's benchmark and world at its network sizes
+                                   (``network.kwargs`` / ``method_kwargs``), each method's count
+                                   and the size ratios next to the same ratios at the paper's
+                                   sizes: a reduced study keeps the paper's proportions when they
+                                   agree
 """
 
 from __future__ import annotations
@@ -18,6 +24,9 @@ from gcnt.analysis.params import (
     setup_of,
 )
 
+#: how far a reduced recipe's size ratio may be from the paper's sizes' before it is flagged
+RATIO_TOLERANCE = 0.10
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -25,9 +34,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="smpenv",
         help="benchmark whose widths and preset to count at: smpenv (default) or unimal",
     )
+    parser.add_argument(
+        "--recipe",
+        default=None,
+        help="count at this recipe's benchmark, world and network sizes, with the size ratios "
+        "against the paper's sizes",
+    )
+    parser.add_argument(
+        "--methods",
+        default=None,
+        help="with --recipe: comma-separated methods (default: the benchmark's paper columns "
+        "that take the recipe's sizes)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "recipe", None):
+        return run_recipe(args.recipe, args.methods)
     setup = setup_of(args.benchmark)
     algo = ALGORITHM.get(setup.benchmark, "ppo")
     rows = count_table(args.benchmark)
@@ -72,4 +95,60 @@ def run(args: argparse.Namespace) -> int:
         "\npaper: appendix table 7 (SMPENV) / 8 (UNIMAL); it does not say what it counts "
         "(see `gcnt params --help` and this command's module docstring)."
     )
+    return 0
+
+
+def run_recipe(path: str, methods: str | None) -> int:
+    """Counts at a recipe's sizes, and each size ratio against the same ratio at the paper's
+    sizes (flagged when more than :data:`RATIO_TOLERANCE` apart)."""
+    from dataclasses import replace
+
+    from gcnt.analysis.params import METHODS
+    from gcnt.nn import make_config
+    from gcnt.recipes import load_recipe
+
+    recipe = load_recipe(path)
+    benchmark, world = recipe.env.benchmark, recipe.env.world
+    setup = setup_of(benchmark)
+    worlds = [world] if world else None
+
+    def sizes(name: str) -> dict:
+        return replace(recipe.network, name=name).sizes()
+
+    if methods:
+        names = [m.strip() for m in methods.split(",") if m.strip()]
+    else:
+        names = []
+        for name in METHODS.get(setup.benchmark, METHODS["unimal"]):
+            try:
+                make_config(name, setup.preset, **sizes(name))
+            except (TypeError, ValueError) as e:
+                print(f"{name}: not counted ({e})")
+                continue
+            names.append(name)
+    rows = count_table(benchmark, sizes, worlds, names)
+    paper_rows = count_table(benchmark, None, worlds, names)
+    print(f"recipe {path}: benchmark {setup.benchmark}, world {world or '-'}")
+    head = (
+        f"{'world':<10}{'method':<16}{'sizes':<44}{'actor':>10}{'critic':>10}{'actor+critic':>14}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        kw = ", ".join(f"{k}={v}" for k, v in sizes(r["method"]).items()) or "the preset's"
+        print(
+            f"{r['world']:<10}{r['method']:<16}{kw:<44}{r['actor']:>10,}{r['critic']:>10,}"
+            f"{r['total']:>14,}"
+        )
+    for w in dict.fromkeys(r["world"] for r in rows):
+        here = ratios(rows, w)
+        there = ratios(paper_rows, w)
+        for label, (ours, _) in here.items():
+            full = there[label][0]
+            off = ours / full - 1.0
+            flag = "within" if abs(off) <= RATIO_TOLERANCE else "NOT within"
+            print(
+                f"{label} (actor + critic): {ours:.3f} at the recipe's sizes, {full:.3f} at the "
+                f"paper's sizes ({off:+.1%}: {flag} {RATIO_TOLERANCE:.0%})"
+            )
     return 0

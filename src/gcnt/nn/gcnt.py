@@ -5,7 +5,7 @@
     limbs/input ─ encoder (Linear F→d, ·√d) ───────────────────────┐
     limbs/type, graph/adj ─ gcn (one-hot → width, 4 residual GCN) ─┤ fusion: + Linear([GCN ‖ WL] → d)
     graph/wl ──────────────────────────────────────────────────────┘
-    graph/dist ─ dist_bias (Embedding(clamped hop distance) → one bias per head, every layer)
+    graph/dist ─ dist_bias (Embedding(clamped hop distance) → one bias per head, every layer or the first)
     → transformer (post-LN encoder layers, bias added to q·k/√d_h, padded keys masked, final LN)
     → head: [output ‖ limbs/input (‖ height-map embedding)] → (64 →) out, per limb
 
@@ -15,11 +15,14 @@ Choices the paper leaves open, made here:
   encoder of the codebase GCNT was built on; set ``encoder_hidden`` for a deeper MLP.
 * **Transformer**: post-LN with a final LayerNorm, as AMORPHEUS/SWAT (GCNT was implemented on
   SWAT's code); ``norm_first=True`` gives pre-LN.
-* **Distance bias**: one zero-initialised embedding table g_φ(d), one value per head, added to
-  the attention logits of every layer (``dist_bias="shared"``, the paper's eq. 5 and the size its
-  UNIMAL parameter count fits); ``dist_bias="per_layer"`` gives each layer its own table. Hop
-  distances are clamped to ``max_dist``; zero init means training starts from the plain
-  Transformer.
+* **Distance bias**: one zero-initialised embedding table g_φ(d), one value per head
+  (``dist_bias="shared"``: eq. 5 has one mapping and no layer index, and the paper's UNIMAL
+  parameter count fits one table), added to the attention logits of every layer
+  (``dist_bias_layers="all"``, as ModuMorph's code adds its structural biases in every layer
+  and Graphormer its shared spatial table) or of the first layer only (``"first"``, as SWAT's
+  code adds its relational bias; the ablation ``gcnt_dist_first``). ``dist_bias="per_layer"``
+  gives each layer its own table. Hop distances are clamped to ``max_dist``; zero init means
+  training starts from the plain Transformer.
 * **WL counts** enter raw (counts, not frequencies), as the paper describes.
 * **Initial weights** as the code GCNT was built on (:mod:`gcnt.nn.init`): on SMPENV the
   AMORPHEUS/SWAT code's (embedding and last decoder layer U(±0.1), decoder bias 0), on UNIMAL the
@@ -62,7 +65,7 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     if cfg.hypernet:
         ctx_dim = context_width(table, "GCNT+HN")
         hyper = cfg.hn_width
-        stages.append(("hn_context", context_stage(ctx_dim, (hyper, hyper), K.HN_CONTEXT, True)))
+        stages.append(("hn_context", context_stage(ctx_dim, (hyper, hyper), K.HN_CONTEXT)))
         stages.append(
             ("encoder", hyper_encoder_stage(hyper, io.in_dim, cfg.d_model, cfg.input_scale))
         )
@@ -88,7 +91,11 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
         tables = cfg.layers if cfg.dist_bias == "per_layer" else 1
         stages.append(("dist_bias", distance_bias_stage(cfg.max_dist, cfg.heads, tables)))
         static.append(K.DIST)
-    enc = encoder_of(cfg, "per_layer" if cfg.dist_bias == "per_layer" else "shared")
+    if cfg.dist_bias == "per_layer":
+        bias_mode = "per_layer"
+    else:
+        bias_mode = "first" if cfg.dist_bias_layers == "first" else "shared"
+    enc = encoder_of(cfg, bias_mode)
     stages.append(("transformer", transformer_stage(enc, hidden_key, cfg.use_dist_bias)))
     head = limb_head_stage(
         cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width, hyper_dim=hyper

@@ -1,9 +1,10 @@
 """Plain torch building blocks shared by GCNT and the baselines (no method imports another).
 
 * :class:`EncoderLayer`: the Transformer encoder layer of the package (GCNT, AMORPHEUS, SWAT,
-  MetaMorph): multi-head self-attention (:func:`attention`) with an additive float mask (a learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward
-  block, with post-LN (AMORPHEUS) or pre-LN (MetaMorph) residuals. Its parameter shapes match
-  ``torch.nn.TransformerEncoderLayer``.
+  MetaMorph): multi-head self-attention (:func:`attention`) with an additive float mask (a
+  learned bias plus ``-inf`` on padded keys), then a ReLU feed-forward block, with post-LN
+  (AMORPHEUS) or pre-LN (MetaMorph) residuals. Its parameter shapes and initial attention
+  weights match ``torch.nn.TransformerEncoderLayer``'s.
 * :class:`ContextAttentionLayer`: ModuMorph's "fixed attention" layer (queries and keys from a
   static context embedding, values from the token stream).
 * :class:`HyperLinear`: a per-limb linear map whose weight and bias a hypernetwork generates from
@@ -109,6 +110,16 @@ class EncoderLayer(nn.Module):
         self.norm1 = nn.LayerNorm(d_model)
         self.norm2 = nn.LayerNorm(d_model)
         self.drop = nn.Dropout(dropout)
+        self.reset_attention_parameters()
+
+    def reset_attention_parameters(self) -> None:
+        """``nn.MultiheadAttention``'s initial weights, which every original Transformer method
+        uses (AMORPHEUS, SWAT, MetaMorph, ModuMorph): the stacked Q/K/V in-projection
+        xavier-uniform over its [3d, d] weight, zero in- and out-projection biases; the
+        out-projection weight keeps ``nn.Linear``'s default."""
+        nn.init.xavier_uniform_(self.qkv.weight)
+        nn.init.zeros_(self.qkv.bias)
+        nn.init.zeros_(self.proj.bias)
 
     def attention(self, x: Tensor, attn_mask: Tensor) -> Tensor:
         n, k, d = x.shape

@@ -115,6 +115,13 @@ register_network("gcnt_no_gcn", GCNTConfig, gcnt_backbone, fixed={"use_gcn": Fal
 register_network("gcnt_no_wl", GCNTConfig, gcnt_backbone, fixed={"use_wl": False})
 register_network("gcnt_no_dist", GCNTConfig, gcnt_backbone, fixed={"use_dist_bias": False})
 register_network(
+    "gcnt_dist_first",
+    GCNTConfig,
+    gcnt_backbone,
+    fixed={"dist_bias_layers": "first"},
+    description="GCNT, distance bias in the first layer only",
+)
+register_network(
     "gcnt_hn", GCNTConfig, gcnt_backbone, fixed={"hypernet": True}, description="GCNT+HN"
 )
 register_network("amorpheus", AmorpheusConfig, amorpheus_backbone, description="AMORPHEUS")

@@ -317,21 +317,28 @@ def context_width(table, owner: str) -> int:
     return int(table.get(K.CONTEXT).shape[-1])
 
 
-class ContextMLP(nn.Module):
-    """An MLP over each limb's static context ``limbs/context`` [*, K, C]."""
+#: ModuMorph's context embeddings (``context_embed_HN``, ``context_embed_attention``) start with
+#: weights U(±0.1) (its ``HN_EMBED_INIT`` and ``EMBED_INIT``); their other layers keep PyTorch's
+#: defaults
+CONTEXT_EMBED_BOUND = 0.1
 
-    def __init__(self, ctx_dim: int, widths: Sequence[int], final_activation: bool) -> None:
+
+class ContextMLP(nn.Module):
+    """An MLP over each limb's static context ``limbs/context`` [*, K, C] with a ReLU after
+    every layer, its first layer's weight U(±:data:`CONTEXT_EMBED_BOUND`), as ModuMorph's."""
+
+    def __init__(self, ctx_dim: int, widths: Sequence[int]) -> None:
         super().__init__()
-        self.net = mlp(ctx_dim, widths[:-1], widths[-1], final_activation=final_activation)
+        self.net = mlp(ctx_dim, widths[:-1], widths[-1], final_activation=True)
+        first = self.net[0]
+        nn.init.uniform_(first.weight, -CONTEXT_EMBED_BOUND, CONTEXT_EMBED_BOUND)
 
     def forward(self, ctx: Tensor) -> Tensor:
         return self.net(ctx.to(self.net[0].weight.dtype))
 
 
-def context_stage(
-    ctx_dim: int, widths: Sequence[int], out_key, final_activation: bool
-) -> TensorDictModule:
-    return TensorDictModule(ContextMLP(ctx_dim, widths, final_activation), [K.CONTEXT], [out_key])
+def context_stage(ctx_dim: int, widths: Sequence[int], out_key) -> TensorDictModule:
+    return TensorDictModule(ContextMLP(ctx_dim, widths), [K.CONTEXT], [out_key])
 
 
 class HyperEncoder(nn.Module):

@@ -5,12 +5,15 @@ generated per limb by a hypernetwork from the limb's static context, with "fixed
 
     limbs/context ─ hn_context: MLP C → 128 → 128 (ReLU) ─────────────── h (per limb)
     limbs/input, h ─ encoder: HyperLinear(F → d)(x, h) · √d
-    limbs/context ─ attn_context: MLP C → 128 → 128 → 128 (ReLU between) ─ c (once per robot)
+    limbs/context ─ attn_context: MLP C → 128 → 128 → 128 (ReLU after each) ─ c (once per robot)
     → fixed-attention layers: Q, K from LayerNorm_l(c), V from the pre-LN token stream; no final LN
     → head: HyperLinear layers over [output (‖ height-map embedding)] → (64 →) out, ReLU between
 
 No position embedding, no dropout. The hypernetwork's generators start with zero weights, so every
 limb starts with the same maps: embedding weights U(±0.1), decoder weights U(±0.01), biases 0.
+The first layer of each context MLP starts with weights U(±0.1), and both MLPs end with a ReLU,
+as the original's ``context_embed_HN`` / ``context_encoder_HN`` and ``context_embed_attention`` /
+``context_encoder_attention`` (``MasterXiong/ModuMorph`` ``metamorph/algos/ppo/model.py``).
 The context ``limbs/context`` [R, K, C] comes from the robot table (C = 35 on UNIMAL, scaled to
 [-1, 1]); a table without it is an error naming the key.
 """
@@ -38,16 +41,12 @@ def modumorph_backbone(cfg: ModuMorphConfig, io: NetIO, table: TensorDictBase) -
     ctx = context_width(table, "ModuMorph")
     hn = cfg.hn_width
     stages = [
-        ("hn_context", context_stage(ctx, (hn, hn), K.HN_CONTEXT, final_activation=True)),
+        ("hn_context", context_stage(ctx, (hn, hn), K.HN_CONTEXT)),
         ("encoder", hyper_encoder_stage(hn, io.in_dim, cfg.d_model, cfg.input_scale)),
     ]
     if cfg.fixed_attention:
-        stages.append(
-            (
-                "attn_context",
-                context_stage(ctx, cfg.attn_context_widths, K.ATTN_CONTEXT, final_activation=False),
-            )
-        )
+        attn_context = context_stage(ctx, cfg.attn_context_widths, K.ATTN_CONTEXT)
+        stages.append(("attn_context", attn_context))
         enc = ContextTransformer(cfg.d_model, cfg.layers, cfg.heads, cfg.ff, cfg.dropout)
         stages.append(("transformer", context_transformer_stage(enc)))
     else:

@@ -42,7 +42,8 @@ class PPOConfig:
     #: policy ratio clip, and the value clip around the old value (<= 0: no value clipping)
     clip_epsilon: float = 0.2
     clip_value: float = 0.2
-    #: weight of the critic's squared error in the loss (the paper: 0.2)
+    #: the critic's weight in the loss (the paper: 0.2), as the originals' ``VALUE_COEF``: the
+    #: critic term is critic_coeff · ½ · mean(max((v - R)², (v_clip - R)²))
     critic_coeff: float = 0.2
     #: entropy bonus weight (the paper: 0)
     entropy_coeff: float = 0.0

@@ -129,7 +129,9 @@ class PPOLearner:
             clip_epsilon=o.clip_epsilon,
             entropy_bonus=True,  # logged; weight entropy_coeff (the paper: 0)
             entropy_coeff=o.entropy_coeff,
-            critic_coeff=o.critic_coeff,
+            # torchrl's "l2" is (v - R)² with no ½; the originals (MetaMorph, ModuMorph
+            # ppo.py) take ½ · max((v - R)², (v_clip - R)²) times VALUE_COEF, so the ½ is here
+            critic_coeff=0.5 * o.critic_coeff,
             loss_critic_type="l2",
             normalize_advantage=False,  # done over the whole iteration, below
             clip_value=o.clip_value if o.clip_value > 0 else None,
