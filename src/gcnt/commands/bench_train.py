@@ -449,13 +449,15 @@ def ppo_bare_rate(recipe) -> dict:
     import torch
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+    from gcnt.rl.device import on_device
     from gcnt.rl.loop import prepare
 
     recipe.algo_config.kl_stop = 0.0
     prep = prepare(recipe)
     algo, o = prep.algo, recipe.algo_config
+    policy = on_device(algo.policy(), recipe.device)
     with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-        data = prep.env.rollout(o.steps_per_env, algo.policy(), break_when_any_done=False)
+        data = prep.env.rollout(o.steps_per_env, policy, break_when_any_done=False)
     # the warm-up iteration counts the FLOPs
     flops, _ = count_flops(lambda: list(algo.process(data.clone(), data.numel())))
     t0 = time.perf_counter()

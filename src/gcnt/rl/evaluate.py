@@ -22,6 +22,7 @@ from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe
 from gcnt.rl.algorithm import get_algorithm
+from gcnt.rl.device import on_device
 from gcnt.rl.factories import base_env, make_env
 from gcnt.rl.run_dir import RunDirError, strict_json
 
@@ -66,6 +67,14 @@ def check_eval_robots(recipe: Recipe, specs: Sequence[str]) -> list[Robot]:
     return robots
 
 
+def acting_policy(recipe: Recipe, policy_state: dict, env, deterministic: bool):
+    """The algorithm's evaluation policy, on the recipe's device, for the env's CPU tensors."""
+    actor = get_algorithm(recipe.algo).eval_policy(
+        recipe, policy_state, env, deterministic=deterministic
+    )
+    return on_device(actor, recipe.device)
+
+
 @torch.no_grad()
 def evaluate(
     recipe: Recipe,
@@ -90,9 +99,7 @@ def evaluate(
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
     env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
     try:
-        actor = get_algorithm(recipe.algo).eval_policy(
-            recipe, policy_state, env, deterministic=deterministic
-        )
+        actor = acting_policy(recipe, policy_state, env, deterministic)
     except (ValueError, RuntimeError, KeyError) as e:
         env.close()
         if type(e) in (ValueError, RuntimeError, KeyError):  # not a named error of its own
@@ -141,7 +148,7 @@ def render_policy(
     else:
         robots = (eval_robots([robot]) if robot else resolve_robots(recipe.env.robots))[:1]
     env = make_env(recipe, robots, seed=recipe.seed, max_limbs=_pad(recipe, robots), num_threads=1)
-    actor = get_algorithm(recipe.algo).eval_policy(recipe, policy_state, env, deterministic=True)
+    actor = acting_policy(recipe, policy_state, env, True)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         out = render_rollout(base_env(env), actor, steps=steps, path=path)
     env.close()

@@ -447,31 +447,32 @@ def _checkpoint(run: RunDir, algo: Algorithm, env_steps: int) -> None:
 
 
 def _all_finite(state) -> bool:
-    """Whether every floating-point tensor of a (nested) state dict is finite (one device sync).
+    """Whether every floating-point tensor of a (nested) state dict is finite (one device sync
+    per device: a learner's state mixes the networks' device with CPU counters and buffers).
 
-    First one fused norm per tensor (``torch._foreach_norm``: a non-finite element makes its
-    norm non-finite, so finite norms prove every element finite); only when a norm is not
-    finite (a NaN, an inf, or finite weights so large that the norm overflows) each tensor is
-    checked element by element, which decides."""
-    tensors = []
+    Per device and dtype, first one fused norm per tensor (``torch._foreach_norm``: a non-finite
+    element makes its norm non-finite, so finite norms prove every element finite); only when a
+    norm is not finite (a NaN, an inf, or finite weights so large that the norm overflows) each
+    tensor is checked element by element, which decides. Tensors on the ``meta`` device hold no
+    values and are skipped."""
+    groups: dict[tuple[torch.device, torch.dtype], list[torch.Tensor]] = defaultdict(list)
     stack = [state]
     while stack:
         x = stack.pop()
         if isinstance(x, torch.Tensor):
-            if x.is_floating_point() and x.numel():
-                tensors.append(x)
+            if x.is_floating_point() and x.numel() and x.device.type != "meta":
+                groups[(x.device, x.dtype)].append(x)
         elif isinstance(x, dict):
             stack.extend(x.values())
         elif isinstance(x, (list, tuple)):
             stack.extend(x)
-    if not tensors:
-        return True
-    norms = torch._foreach_norm(tensors)
-    if len({n.dtype for n in norms}) > 1:
-        norms = [n.double() for n in norms]
-    if bool(torch.isfinite(torch.stack(norms)).all()):
-        return True
-    return bool(torch.stack([torch.isfinite(t).all() for t in tensors]).all())
+    for tensors in groups.values():
+        norms = torch._foreach_norm(tensors)
+        if bool(torch.isfinite(torch.stack(norms)).all()):
+            continue
+        if not bool(torch.stack([torch.isfinite(t).all() for t in tensors]).all()):
+            return False
+    return True
 
 
 def _non_finite(state, prefix: str = "") -> str | None:

@@ -245,7 +245,10 @@ def _unsafe_globals(path: Path) -> list[str]:
 def plain_state(value: Any) -> Any:
     """``value`` with NumPy arrays as tensors and NumPy scalars as Python numbers, through
     dicts, lists and tuples: what ``torch.load(..., weights_only=True)`` reads without
-    allowing any NumPy code. Tensors and other values are kept as they are."""
+    allowing any NumPy code. Tensors are detached CPU tensors (a checkpoint written on a GPU
+    loads anywhere; CPU tensors are kept as they are); other values are kept as they are."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
     if isinstance(value, np.ndarray):
         return torch.from_numpy(np.array(value, copy=True))
     if isinstance(value, np.generic):

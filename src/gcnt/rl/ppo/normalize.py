@@ -50,8 +50,9 @@ class ObsNormalizer(nn.Module):
     def update(self, obs: Tensor, mask: Tensor) -> None:
         """Merge a batch ``obs`` [..., K, F] with its limb ``mask`` [..., K] into the stats."""
         k, f = self.mean.shape
-        x = obs.reshape(-1, k, f).to(torch.float64)
-        m = mask.reshape(-1, k, 1).to(torch.float64)
+        # the batch comes from the env (CPU); the statistics live with the policy
+        x = obs.reshape(-1, k, f).to(self.mean.device, torch.float64)
+        m = mask.reshape(-1, k, 1).to(self.mean.device, torch.float64)
         n = m.sum(0)  # [K, 1]
         seen = n > 0
         b_mean = (x * m).sum(0) / n.clamp(min=1)

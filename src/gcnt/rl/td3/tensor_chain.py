@@ -71,7 +71,9 @@ class RobotBatch:
 
     def __init__(self, table: Mapping[Key, Tensor], ids: Tensor) -> None:
         self.table = dict(table)
-        self.ids = ids
+        device = next(iter(self.table.values())).device if self.table else ids.device
+        # the table lives with the networks; ids read from a CPU batch follow it there
+        self.ids = ids if ids.device == device else ids.to(device)
         self._gathered: dict[Key, Tensor] = {}
 
     def gathered(self, key: Key) -> Tensor:
