@@ -45,3 +45,23 @@ def test_up_messages_are_unit_vectors_and_the_critic_head_sees_only_the_action()
     critic = make_network("smp", "td3_critic", keep_intermediates=True, **kw).double()
     head = critic["head"].module
     assert head.net[0].in_features == 2 * 8 + 1
+
+
+def test_every_level_runs_when_the_deepest_cannot_be_read(monkeypatch):
+    """While a CUDA graph is captured or torch.compile traces, the message passes cannot read
+    the batch's deepest limb on the host; they run every level a K-limb tree can have, which
+    gives the same messages (float64)."""
+    from gcnt.nn.baselines import smp
+
+    torch.manual_seed(0)
+    table = table_of(robots())
+    kw = dict(table=table, obs_dim=F_OBS, num_actions=1, msg_dim=8, hidden=12, head_hidden=(16,))
+    actor = make_network("smp", "td3_actor", **kw).double()
+    td = double(batch(table, [3, 0, 5], seed=1))
+    read = actor(td.clone())[K.ACTION]
+    depth = smp.tree_depth(table["graph", "parent"], table[K.MASK])
+    k = table[K.MASK].shape[-1]
+    assert smp.message_levels(depth, k) < k - 1  # the shortcut is real: fewer levels
+    monkeypatch.setattr(torch.compiler, "is_compiling", lambda: True)
+    assert smp.message_levels(depth, k) == k - 1
+    assert torch.equal(actor(td.clone())[K.ACTION], read)

@@ -73,20 +73,50 @@ def recipe_and_overrides(recipe: str, overrides: list[str]) -> tuple[str, list[s
     return recipe, list(overrides)
 
 
-def matmul_peak_gflops(size: int = 1024, repeats: int = 5) -> float:
-    """GFLOP/s of the best of ``repeats`` float32 ``size`` × ``size`` matrix products on torch's
-    threads as configured: the arithmetic limit the updates are measured against."""
+def matmul_peak_gflops(
+    size: int | None = None, repeats: int = 5, device: str = "cpu", amp: bool = False
+) -> float:
+    """GFLOP/s of the best of ``repeats`` ``size`` × ``size`` matrix products on ``device``, in
+    the update's precision: float32 (on a GPU with torch's TF32 setting as configured), bfloat16
+    with ``amp``. The arithmetic limit the updates are measured against. On a CPU the products
+    run on torch's threads as configured (size 1024); on a GPU they are timed with CUDA events
+    (size 8192, so that the product fills the device)."""
     import torch
 
-    a = torch.randn(size, size)
-    b = torch.randn(size, size)
+    dev = torch.device(device)
+    cuda = dev.type == "cuda"
+    size = size or (8192 if cuda else 1024)
+    dtype = torch.bfloat16 if amp else torch.float32
+    a = torch.randn(size, size, device=dev, dtype=dtype)
+    b = torch.randn(size, size, device=dev, dtype=dtype)
     torch.mm(a, b)  # warm-up
     best = float("inf")
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        torch.mm(a, b)
-        best = min(best, time.perf_counter() - t0)
+        if cuda:
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+            torch.mm(a, b)
+            end.record()
+            end.synchronize()
+            seconds = start.elapsed_time(end) / 1e3
+        else:
+            t0 = time.perf_counter()
+            torch.mm(a, b)
+            seconds = time.perf_counter() - t0
+        best = min(best, seconds)
     return 2 * size**3 / best / 1e9
+
+
+def device_line(device: str) -> str:
+    """What the update runs on: the GPU's name and its peak memory so far, or the CPU threads."""
+    import torch
+
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        name = torch.cuda.get_device_name(dev)
+        mem = torch.cuda.max_memory_allocated(dev) / 2**30
+        return f"device: {name}, {mem:.2f} GiB peak memory allocated"
+    return f"device: CPU, {torch.get_num_threads()} torch threads"
 
 
 def count_flops(fn) -> tuple[int, object]:
@@ -372,7 +402,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
 
     import torch
 
-    peak = matmul_peak_gflops()
+    peak = matmul_peak_gflops(device=recipe.device, amp=recipe.compile.amp)
     out = {
         "recipe": args.recipe,
         "algo": "td3",
@@ -441,6 +471,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates); "
             f"ratio to the bare update {row['ratio']:.3f}"
         )
+    print(device_line(recipe.device))
     return 0
 
 
@@ -484,7 +515,7 @@ def ppo_end_to_end(recipe, iterations: int) -> dict:
 def run_ppo(args: argparse.Namespace, recipe) -> int:
     import torch
 
-    peak = matmul_peak_gflops()
+    peak = matmul_peak_gflops(device=recipe.device, amp=recipe.compile.amp)
     bare = ppo_bare_rate(recipe)
     e2e = ppo_end_to_end(recipe, args.iterations)
     bare_steps = bare["frames"] / bare["update_s"]
@@ -521,6 +552,7 @@ def run_ppo(args: argparse.Namespace, recipe) -> int:
             f"{e2e['update_s']:.2f} s per iteration; collector {out['collector']})"
         )
         print(f"ratio (end-to-end ÷ bare env steps/s): {out['ratio']:.3f}")
+        print(device_line(recipe.device))
     return 0
 
 

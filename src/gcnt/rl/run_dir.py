@@ -248,6 +248,8 @@ def plain_state(value: Any) -> Any:
     allowing any NumPy code. Tensors are detached CPU tensors (a checkpoint written on a GPU
     loads anywhere; CPU tensors are kept as they are); other values are kept as they are."""
     if isinstance(value, torch.Tensor):
+        if value.device.type == "cpu" and not value.requires_grad:
+            return value
         return value.detach().cpu()
     if isinstance(value, np.ndarray):
         return torch.from_numpy(np.array(value, copy=True))

@@ -70,8 +70,18 @@ def _flat_tree(x: Tensor, parent: Tensor, mask: Tensor):
     parent, _ = flatten_lead(parent, 1)
     mask, _ = flatten_lead(mask, 1)
     depth = tree_depth(parent, mask)
-    levels = int(depth.max()) if depth.numel() else -1
-    return x, lead, parent, mask, depth, levels
+    return x, lead, parent, mask, depth, message_levels(depth, parent.shape[-1])
+
+
+def message_levels(depth: Tensor, k: int) -> int:
+    """The deepest level the message passes run to: the batch's deepest limb, read on the host.
+    While a CUDA graph is captured or torch.compile traces, that read (a device sync, a data-
+    dependent graph break) is not allowed, so every level a tree of ``k`` limbs can have runs
+    instead: levels below the deepest limb select no limb and change nothing."""
+    capturing = depth.is_cuda and torch.cuda.is_current_stream_capturing()
+    if capturing or torch.compiler.is_compiling():
+        return k - 1
+    return int(depth.max()) if depth.numel() else -1
 
 
 class SMPUp(_Messages):
