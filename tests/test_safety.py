@@ -283,7 +283,7 @@ def test_a_base_that_is_a_directory_fifo_or_huge_file_is_refused(tmp_path):
     huge = tmp_path / "huge.yaml"
     huge.write_bytes(b"#" * (2 << 20))
     for base, message in ((tmp_path, "a directory"), (fifo, "not a regular file"),
-                          (huge, "larger than 1024 KiB")):  # fmt: skip
+                          (huge, "larger than 1.0 MiB")):  # fmt: skip
         with pytest.raises(RecipeError, match=message):
             load_recipe(_recipe(tmp_path, f"base: {base}\n"))
 

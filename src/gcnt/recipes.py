@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import os
-import stat
 import types
 import typing
 from dataclasses import dataclass, field
@@ -555,23 +553,9 @@ def _recipe_keys() -> set[str]:
 def _read_text(path: Path) -> str:
     """A recipe file's text. It must be a regular file (not a device, FIFO or directory) of at
     most :data:`MAX_RECIPE_BYTES`; the error names the file and never quotes it."""
-    try:
-        # O_NONBLOCK: opening a FIFO does not wait for a writer; fstat then refuses it
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            os.close(fd)
-            kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
-            raise RecipeError(f"{path}: {kind}; a recipe is a YAML file")
-        with open(fd, "rb") as f:
-            raw = f.read(MAX_RECIPE_BYTES + 1)
-    except OSError as e:
-        raise RecipeError(f"{path}: cannot read recipe ({e.strerror})") from None
-    if len(raw) > MAX_RECIPE_BYTES:
-        raise RecipeError(
-            f"{path}: larger than {MAX_RECIPE_BYTES // 1024} KiB; not a recipe (a recipe is YAML "
-            "of a few kilobytes)"
-        )
+    from gcnt.files import read_regular
+
+    raw = read_regular(path, MAX_RECIPE_BYTES, "a recipe is a YAML file", RecipeError)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:

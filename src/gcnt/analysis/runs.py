@@ -22,6 +22,7 @@ from typing import Any
 
 import yaml
 
+from gcnt.files import MiB, read_regular
 from gcnt.suggest import existing_path
 
 RECIPE_FILE = "recipe.yaml"
@@ -164,9 +165,10 @@ class Run:
     @cached_property
     def recipe(self) -> dict[str, Any]:
         path = self.path / RECIPE_FILE
+        raw = read_regular(path, MiB, "a run's recipe is YAML", AnalysisError)
         try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as e:
+            data = yaml.safe_load(raw) or {}
+        except yaml.YAMLError as e:
             raise AnalysisError(f"{path}: cannot read the recipe ({e})") from e
         if not isinstance(data, dict):
             raise AnalysisError(f"{path}: the recipe is not a mapping")
@@ -293,8 +295,9 @@ class Run:
         out = []
         for path in sorted((self.path / "eval").glob("*.json")):
             try:
-                data = json.loads(path.read_text())
-            except (OSError, json.JSONDecodeError):
+                raw = read_regular(path, 64 * MiB, "an evaluation is JSON", AnalysisError)
+                data = json.loads(raw)
+            except (AnalysisError, json.JSONDecodeError, UnicodeDecodeError):
                 continue
             if not isinstance(data, dict) or not isinstance(data.get("robots"), dict):
                 continue

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -61,6 +62,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="TD3 instead: bare update time of 1..S seeds stacked (gcnt train --seeds) against "
         "one seed's own update, mixed schedule",
+    )
+    p.add_argument(
+        "--workers",
+        metavar="W1,W2,...",
+        help="PPO instead: collection alone (no update), env steps/s of the single collector "
+        "and of torchrl's multi-process collector with each of these worker counts, in one run",
     )
     p.add_argument("--json", action="store_true", help="print JSON only")
 
@@ -293,6 +300,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(f"recipe: {args.recipe} ({recipe.algo}, {recipe.network.name})")
     if recipe.algo == "ppo":
+        if args.workers:
+            return run_collect(args, recipe)
         return run_ppo(args, recipe)
     if recipe.algo != "td3":
         raise RecipeError(
@@ -553,6 +562,82 @@ def run_ppo(args: argparse.Namespace, recipe) -> int:
         )
         print(f"ratio (end-to-end ÷ bare env steps/s): {out['ratio']:.3f}")
         print(device_line(recipe.device))
+    return 0
+
+
+def collect_rate(recipe, workers: int, batches: int) -> dict:
+    """Env steps/s of PPO's collection alone over ``batches`` batches of one iteration's frames
+    (after one warm-up batch), as ``gcnt train`` collects them: the single collector
+    (``workers`` 0) or torchrl's multi-process collector over ``workers`` worker processes; the
+    policy's weights are sent to the workers after every batch, as training does."""
+    import copy
+
+    import torch
+
+    from gcnt.rl.loop import make_collector, prepare
+
+    r = copy.deepcopy(recipe)
+    o = r.algo_config
+    o.collector, o.workers = ("multi", workers) if workers else ("single", 1)
+    prep = prepare(r)
+    settings = prep.algo.collect_settings(0)
+    multi = settings.env_makers is not None
+    collector = make_collector(r, prep.env, settings)
+    if multi:
+        prep.env.close()
+    frames, times = 0, []
+    try:
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            for i, data in enumerate(collector):
+                if i:  # the first batch warms up (worker start, first compiled kernels)
+                    times.append(time.perf_counter() - t0)
+                    frames += data.numel()
+                if multi:
+                    collector.update_policy_weights_()
+                if i == batches:
+                    break
+                t0 = time.perf_counter()
+    finally:
+        collector.shutdown()
+        if not multi:
+            prep.env.close()
+    return {"workers": workers, "env_steps_per_s": frames / sum(times), "batches": len(times)}
+
+
+def run_collect(args: argparse.Namespace, recipe) -> int:
+    """``--workers``: the single collector, then each worker count, in one run."""
+    counts = [int(w) for w in str(args.workers).split(",") if w.strip()]
+    if any(w < 1 for w in counts):
+        raise ValueError(f"--workers: counts must be >= 1, got {args.workers}")
+    o = recipe.algo_config
+    bad = [w for w in counts if o.num_envs % w]
+    if bad:
+        raise ValueError(f"--workers: {bad} do not divide ppo.num_envs={o.num_envs}")
+    batches = max(2, args.iterations)
+    single = collect_rate(recipe, 0, batches)
+    rows = [collect_rate(recipe, w, batches) for w in counts]
+    out = {
+        "recipe": args.recipe,
+        "frames_per_batch": o.num_envs * o.steps_per_env,
+        "single": single,
+        "multi": rows,
+        "usable_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+    }
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    base = single["env_steps_per_s"]
+    print(
+        f"collection alone, {out['frames_per_batch']} frames per batch, {single['batches']} "
+        f"timed batches each, {out['usable_cpus']} usable CPUs"
+    )
+    print(f"single collector        {base:10.0f} env steps/s  1.00x")
+    for row in rows:
+        rate = row["env_steps_per_s"]
+        print(
+            f"multi, {row['workers']:2d} worker(s)     {rate:10.0f} env steps/s  {rate / base:.2f}x"
+        )
     return 0
 
 

@@ -37,6 +37,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from gcnt.files import MiB, read_regular
 from gcnt.morphology.graph import WL_BUCKETS, WL_ROUNDS, RobotGraph
 from gcnt.morphology.limb_types import (
     FAMILIES,
@@ -191,11 +192,14 @@ def load_robot(path: str | Path, catalogue: str | None = None, family: str | Non
     )
 
 
+#: the largest robot file read: MJCF robots are kilobytes (a humanoid with meshes referenced,
+#: not inlined, is under 100 KiB)
+MAX_ROBOT_FILE_BYTES = 16 * MiB
+
+
 def _read_text(path: Path, source: str) -> str:
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise RobotFileError(f"{source}: cannot read robot file ({e.strerror})") from e
+    what = "a robot file is MJCF XML" + (f" ({source})" if source != str(path) else "")
+    data = read_regular(path, MAX_ROBOT_FILE_BYTES, what, RobotFileError)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:

@@ -15,6 +15,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from gcnt.files import GiB, read_regular
+
 log = logging.getLogger(__name__)
 
 #: (file, line number) of the incomplete last lines already warned about in this process
@@ -49,19 +51,22 @@ def read_metrics_row(row: Any) -> Any:
     return {k: math.nan if v is None else v for k, v in row.items()}
 
 
+#: the largest metrics log read (a row per log interval: a paper-scale run writes a few MiB)
+MAX_METRICS_BYTES = 4 * GiB
+
+
 def read_metrics(path: str | Path) -> list[dict[str, Any]]:
     """The rows of the metrics file ``path`` (none when it does not exist), ``null`` read as
     NaN. An incomplete last line is dropped with a warning; a line before it that is not a
     JSON object raises MetricsFileError naming the file and line."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
+    if not path.exists() and not path.is_symlink():
         return []
-    except (OSError, UnicodeDecodeError) as e:
-        raise MetricsFileError(
-            f"{path}: unreadable ({getattr(e, 'strerror', None) or e})"
-        ) from None
+    raw = read_regular(path, MAX_METRICS_BYTES, "a metrics log is JSON lines", MetricsFileError)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise MetricsFileError(f"{path}: not a text file; a metrics log is JSON lines") from None
     lines = text.splitlines()
     rows = []
     for number, line in enumerate(lines, 1):

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from gcnt.files import GiB, open_regular
 from gcnt.recipes import Recipe, RecipeError, load_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
@@ -186,9 +187,11 @@ class RunDir:
         path = self.checkpoint_path
         if not path.exists():
             raise CheckpointError(f"{self.path}: no checkpoint ({CHECKPOINT})")
+        what = "a checkpoint is the file gcnt train writes"
+        f = open_regular(path, MAX_CHECKPOINT_BYTES, what, CheckpointError)
         try:
-            with torch.serialization.safe_globals(NUMPY_GLOBALS):
-                state = torch.load(path, map_location=map_location, weights_only=True)
+            with f, torch.serialization.safe_globals(NUMPY_GLOBALS):
+                state = torch.load(f, map_location=map_location, weights_only=True)
         except Exception as e:  # torch raises many kinds for a truncated or foreign file
             unsafe = _unsafe_globals(path)
             if unsafe:
@@ -206,6 +209,10 @@ class RunDir:
             raise CheckpointError(f"{path}: not a gcnt checkpoint")
         return state
 
+
+#: the largest checkpoint read (networks, optimiser state and counters; the replay is a file of
+#: its own): a paper-scale checkpoint is tens of MiB
+MAX_CHECKPOINT_BYTES = 16 * GiB
 
 #: NumPy's array and scalar reconstruction, allowed under ``weights_only=True`` for checkpoints
 #: that hold NumPy arrays: they build an array or scalar from a dtype and raw bytes; an object

@@ -214,10 +214,14 @@ class RobotReplay:
     def load(self, path: str | Path) -> None:
         """Read :meth:`save`'s file (tensors and plain types only: ``weights_only=True``); an
         unreadable or refused file is a CheckpointError naming it."""
+        from gcnt.files import GiB, open_regular
         from gcnt.rl.run_dir import CheckpointError
 
+        what = "a replay file is what gcnt train writes next to its checkpoint"
+        f = open_regular(path, 1024 * GiB, what, CheckpointError)
         try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
+            with f:
+                state = torch.load(f, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises many kinds for a truncated or foreign file
             detail = str(e).splitlines()[0] if str(e) else "no detail"
             raise CheckpointError(
