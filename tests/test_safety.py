@@ -379,3 +379,25 @@ def test_zeroshot_prefers_gcnt_eval_of_the_test_robots_on_a_tie(tmp_path):
     assert training.matches("test")  # both name the test set
     for evals in ([training, test], [test, training]):
         assert seed_score(evals, "walker_3_main", deterministic=True) == (2.0, test)
+
+
+def test_the_same_relative_robot_path_from_two_folders_names_two_files(tmp_path, monkeypatch):
+    """``--robots r/x.xml`` typed in two working folders names two different robots: the file
+    name hashes the resolved file and its content, and the JSON records them."""
+    from gcnt.commands.eval import _label, resolved_spec
+
+    names, resolved = [], []
+    for folder, text in (("one", "<mujoco model='a'/>"), ("two", "<mujoco model='b'/>")):
+        (tmp_path / folder / "r").mkdir(parents=True)
+        (tmp_path / folder / "r" / "x.xml").write_text(text)
+        monkeypatch.chdir(tmp_path / folder)
+        resolved.append(resolved_spec("r/x.xml"))
+        names.append(_label(["r/x.xml"], [resolved[-1]]))
+    assert names[0] != names[1]
+    assert resolved[0].startswith(str(tmp_path / "one" / "r" / "x.xml") + "#")
+    # the same file, edited in place, is another robot too
+    (tmp_path / "two" / "r" / "x.xml").write_text("<mujoco model='c'/>")
+    assert resolved_spec("r/x.xml") != resolved[1]
+    # names and catalogue specs are not paths: kept as typed
+    assert resolved_spec("hopper_3") == "hopper_3"
+    assert resolved_spec("Unimal:variants-kinematics") == "Unimal:variants-kinematics"

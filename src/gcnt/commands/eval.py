@@ -61,21 +61,42 @@ def default_episodes(deterministic: bool) -> int:
     return 100 if deterministic else 32
 
 
-def _label(specs: list[str]) -> str:
+def resolved_spec(spec: str) -> str:
+    """What a robot spec names, independent of the working folder: a robot file or folder as
+    its resolved path and a hash of its content (every robot file of a folder), anything else
+    (a robot name, ``Benchmark:split``, a pattern) as typed."""
+    path = Path(spec)
+    try:
+        if path.is_file():
+            files = [path]
+        elif path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.suffix == ".xml" and p.is_file())
+        else:
+            return spec
+        digest = hashlib.sha256()
+        for f in files:
+            digest.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+        return f"{path.resolve()}#{digest.hexdigest()[:16]}"
+    except OSError:
+        return spec
+
+
+def _label(specs: list[str], resolved: list[str] | None = None) -> str:
     """The evaluation file's name for robot ``specs``: the specs themselves (robot names,
-    ``Benchmark:split`` as ``Benchmark-split``) where that is exact; with a short hash of the
-    exact list appended where the name lost something (a file's folder, a character replaced,
-    a long list cut), so that different robot sets never share a file (``"a b.xml"`` and
-    ``a_b.xml``)."""
+    ``Benchmark:split`` as ``Benchmark-split``) where that is exact; with a short hash of what
+    they name (``resolved``, from :func:`resolved_spec`: files by resolved path and content)
+    appended where the name lost something (a file's folder, a character replaced, a long list
+    cut), so that different robot sets never share a file (``"a b.xml"`` and ``a_b.xml``; the
+    same relative path typed in two working folders)."""
     text = "+".join(Path(s).stem if s.endswith(".xml") else s for s in specs)
     label = re.sub(r"[^A-Za-z0-9_.+-]+", "_", text.replace(":", "-"))[:80] or "robots"
     exact = all(
         re.fullmatch(r"[A-Za-z0-9_.+-]+(:[A-Za-z0-9_.+-]+)?", s) and not s.endswith(".xml")
         for s in specs
     )
-    if exact and len(text) <= 80:
+    if exact and len(text) <= 80 and (resolved is None or resolved == specs):
         return label
-    digest = hashlib.sha1("\n".join(specs).encode()).hexdigest()[:8]
+    digest = hashlib.sha1("\n".join(resolved or specs).encode()).hexdigest()[:8]
     return f"{label}-{digest}"
 
 
@@ -118,15 +139,18 @@ def run(args: argparse.Namespace) -> int:
         raise CheckpointError(f"{run_dir.checkpoint_path}: {e}") from None
     print(protocol_text(deterministic, episodes))
     print(format_table(results))
+    resolved = [s if s in ("test", "train") else resolved_spec(s) for s in args.robots]
     meta = {
         "robots_spec": args.robots,
         "resolved_specs": specs,
+        # robot files and folders by resolved path and content hash
+        "resolved_files": {s: r for s, r in zip(args.robots, resolved, strict=True) if r != s},
         "episodes": episodes,
         "seed": args.seed,
         "deterministic": deterministic,
     }
     mode = "det" if deterministic else "stoch"
-    name = f"{_label(args.robots)}-step{state['env_steps']}-{mode}-seed{args.seed}.json"
+    name = f"{_label(args.robots, resolved)}-step{state['env_steps']}-{mode}-seed{args.seed}.json"
     steps = state["env_steps"]
     failed = None
     try:
