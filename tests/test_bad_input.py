@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import random
 import shutil
 from pathlib import Path
 
@@ -151,17 +152,23 @@ def test_a_checkpoint_that_does_not_fit_an_edited_recipe(trained, tmp_path, caps
 # ------------------------------------------------------------------ 2. errors that name the culprit
 
 
-@pytest.mark.parametrize("damage", ["truncated", "garbage", "empty"])
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "empty", "random"])
 def test_an_unreadable_checkpoint_is_named(damage, trained, tmp_path, capsys):
     run = copy_run(trained, tmp_path)
     ckpt = run / "checkpoints" / "last.pt"
     data = ckpt.read_bytes()
     ckpt.write_bytes(
-        {"truncated": data[: len(data) // 2], "garbage": b"\x00junk" * 50, "empty": b""}[damage]
+        {
+            "truncated": data[: len(data) // 2],
+            "garbage": b"\x00junk" * 50,
+            "empty": b"",
+            "random": random.Random(0).randbytes(4096),
+        }[damage]
     )
     for argv in (["eval", str(run), "--robots", "hopper_3"], ["train", "--resume", str(run)]):
         line = error_line(capsys, argv)
         assert str(ckpt) in line and "not a readable gcnt checkpoint" in line
+        assert "weights_only" not in line  # never torch's advice to load it unsafely
 
 
 @pytest.mark.parametrize(

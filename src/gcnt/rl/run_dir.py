@@ -201,13 +201,22 @@ class RunDir:
                     "holds (it could run code); only load checkpoints from people you trust, "
                     "and only as gcnt wrote them"
                 ) from None
-            detail = str(e).splitlines()[0] if str(e) else "no detail"
             raise CheckpointError(
-                f"{path}: not a readable gcnt checkpoint ({type(e).__name__}: {detail})"
+                f"{path}: not a readable gcnt checkpoint ({load_error_detail(e)})"
             ) from None
         if not isinstance(state, dict) or "env_steps" not in state:
             raise CheckpointError(f"{path}: not a gcnt checkpoint")
         return state
+
+
+def load_error_detail(e: Exception) -> str:
+    """The first line of a ``torch.load`` error, without torch's advice to load with
+    ``weights_only=False``: gcnt never loads a file that way (it could run code)."""
+    lines = [line for line in str(e).splitlines() if line.strip()]
+    first = lines[0] if lines else "no detail"
+    if "weights_only" in first or "Weights only" in first:
+        first = "not a file torch can read as tensors and plain values"
+    return f"{type(e).__name__}: {first}"
 
 
 #: the largest checkpoint read (networks, optimiser state and counters; the replay is a file of

@@ -215,7 +215,7 @@ class RobotReplay:
         """Read :meth:`save`'s file (tensors and plain types only: ``weights_only=True``); an
         unreadable or refused file is a CheckpointError naming it."""
         from gcnt.files import GiB, open_regular
-        from gcnt.rl.run_dir import CheckpointError
+        from gcnt.rl.run_dir import CheckpointError, load_error_detail
 
         what = "a replay file is what gcnt train writes next to its checkpoint"
         f = open_regular(path, 1024 * GiB, what, CheckpointError)
@@ -223,8 +223,7 @@ class RobotReplay:
             with f:
                 state = torch.load(f, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises many kinds for a truncated or foreign file
-            detail = str(e).splitlines()[0] if str(e) else "no detail"
             raise CheckpointError(
-                f"{path}: not a readable replay checkpoint ({type(e).__name__}: {detail})"
+                f"{path}: not a readable replay checkpoint ({load_error_detail(e)})"
             ) from None
         self.load_state_dict(state)
