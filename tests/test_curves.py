@@ -137,3 +137,17 @@ def test_curves_command_eval_metric_and_null_metrics(tmp_path: Path, capsys) -> 
     assert main(["curves", str(tmp_path), "--points", "5"]) == 0
     assert len(read_csv(tmp_path / "figures" / "curves.csv")) == 5
     assert main(["curves", str(tmp_path), "--points", "1"]) == 2
+
+
+def test_a_non_finite_return_is_a_gap_with_a_warning_not_a_line_across(tmp_path, capsys):
+    """A diverged seed's NaN return must not be interpolated away: the mean is NaN there (a
+    gap in the figure, an empty cell in the CSV) and the run and step are named."""
+    make_run(tmp_path, "gcnt", 0, [600, 1200, 1800], lambda s: s / 100)
+    make_run(tmp_path, "gcnt", 1, [600, 1200, 1800], lambda s: math.nan if s == 1200 else s / 100)
+    assert main(["curves", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "seed1" in err and "not finite at 1 logged step(s) (1200)" in err
+    rows = read_csv(tmp_path / "figures" / "curves.csv")
+    by_step = {r["env_steps"]: r["mean"] for r in rows}
+    assert math.isnan(float(by_step["1200"]))
+    assert float(by_step["600"]) == pytest.approx(6.0) and float(by_step["1800"]) == 18.0

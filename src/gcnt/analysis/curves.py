@@ -67,7 +67,9 @@ def _eval_points(run: Run, metric: str) -> list[tuple[float, float]]:
 
 def run_curve(run: Run, metric: str, smooth: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(env_steps, values) of ``metric`` in a run (a column of its metrics, or ``eval``),
-    optionally smoothed; non-finite values are left out."""
+    optionally smoothed. A non-finite value (a NaN return: a diverged run) stays NaN, so that
+    the curve shows a gap there instead of a line drawn across it, and is warned about, naming
+    the run and the steps."""
     if _is_eval(metric):
         raw = _eval_points(run, metric)
     else:
@@ -76,14 +78,27 @@ def run_curve(run: Run, metric: str, smooth: int = 1) -> tuple[np.ndarray, np.nd
             for r in run.metrics()
             if isinstance(r.get(metric), int | float)
         ]
-    pts = sorted((x, y) for x, y in raw if np.isfinite(y))
+    pts = sorted((x, y if np.isfinite(y) else np.nan) for x, y in raw)
     if not pts:
         return np.zeros(0), np.zeros(0)
     x, y = map(np.asarray, zip(*pts, strict=True))
-    if smooth > 1:
-        c = np.cumsum(np.insert(y, 0, 0.0))
+    bad = ~np.isfinite(y)
+    if bad.all():  # never a value (a loss a method does not have): nothing logged
+        return np.zeros(0), np.zeros(0)
+    if bad.any():
+        steps = ", ".join(f"{int(v)}" for v in x[bad][:5]) + (" ..." if bad.sum() > 5 else "")
+        log.warning(
+            "%s: %s is not finite at %d logged step(s) (%s): shown as a gap", run.path, metric,
+            int(bad.sum()), steps,
+        )  # fmt: skip
+    if smooth > 1:  # a moving average over the finite values of each window
+        v = np.where(bad, 0.0, y)
+        c = np.cumsum(np.insert(v, 0, 0.0))
+        n = np.cumsum(np.insert((~bad).astype(float), 0, 0.0))
         lo = np.maximum(np.arange(1, len(y) + 1) - smooth, 0)
-        y = (c[1:] - c[lo]) / (np.arange(1, len(y) + 1) - lo)
+        count = n[1:] - n[lo]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            y = np.where(bad | (count == 0), np.nan, (c[1:] - c[lo]) / count)
     return x, y
 
 
