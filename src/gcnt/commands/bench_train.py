@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -607,6 +606,8 @@ def collect_rate(recipe, workers: int, batches: int) -> dict:
 
 def run_collect(args: argparse.Namespace, recipe) -> int:
     """``--workers``: the single collector, then each worker count, in one run."""
+    from gcnt.envs.stepper import usable_cpus
+
     counts = [int(w) for w in str(args.workers).split(",") if w.strip()]
     if any(w < 1 for w in counts):
         raise ValueError(f"--workers: counts must be >= 1, got {args.workers}")
@@ -622,7 +623,7 @@ def run_collect(args: argparse.Namespace, recipe) -> int:
         "frames_per_batch": o.num_envs * o.steps_per_env,
         "single": single,
         "multi": rows,
-        "usable_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+        "usable_cpus": usable_cpus(),
     }
     if args.json:
         print(json.dumps(out))
