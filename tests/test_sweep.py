@@ -230,3 +230,14 @@ def test_submitit_logs_go_to_the_sweep_not_the_terminal(tmp_path: Path, capsys) 
     for h in logging.getLogger("submitit").handlers:
         h.flush()
     assert "Bypassing sacct error" in path.read_text()
+
+
+def test_a_begun_run_without_a_checkpoint_is_started_not_pending(tmp_path: Path) -> None:
+    spec = _spec(tmp_path)
+    assert spec.files_state() == "pending"
+    run = Path(spec.run_dir)
+    run.mkdir(parents=True)
+    (run / "recipe.yaml").write_text(QUICKSTART.read_text())
+    spec.refresh()
+    assert spec.state == "started"
+    assert "--resume" in S.commands(spec)[0][1]  # it continues, from step 0

@@ -130,14 +130,15 @@ class RunSpec:
     robot: str | None = None
 
     def files_state(self) -> str:
-        """What the run directory shows: ``done``, ``partial`` (a checkpoint) or ``pending``."""
+        """What the run directory shows: ``done``, ``partial`` (a checkpoint), ``started``
+        (begun, no checkpoint yet: it continues from step 0) or ``pending`` (never begun)."""
         path = Path(self.run_dir)
         if not (path / RECIPE_FILE).is_file():
             return "pending"
         run = Run(path)
         if run.finished():
             return "done"
-        return "partial" if run.has_checkpoint() else "pending"
+        return "partial" if run.has_checkpoint() else "started"
 
     def refresh(self, slurm: str | None = None, record: dict[str, Any] | None = None) -> None:
         """Set the state from what knows it: Slurm's state of the run's job (``slurm``, from
