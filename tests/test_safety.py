@@ -401,3 +401,29 @@ def test_the_same_relative_robot_path_from_two_folders_names_two_files(tmp_path,
     # names and catalogue specs are not paths: kept as typed
     assert resolved_spec("hopper_3") == "hopper_3"
     assert resolved_spec("Unimal:variants-kinematics") == "Unimal:variants-kinematics"
+
+
+def test_memory_counts_the_address_space_limit():
+    """Under ``ulimit -v`` (RLIMIT_AS) a run may use the limit minus what it has mapped (torch
+    and its libraries), however much the machine has."""
+    import resource
+    import subprocess
+    import sys
+
+    limit = 6 << 30
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    code = "from gcnt.rl.config_check import memory_bytes; print(memory_bytes('cpu'))"
+    out = subprocess.run(
+        [sys.executable, "-c", code], preexec_fn=cap, capture_output=True, text=True, check=True
+    )
+    assert 0 < int(out.stdout) < limit
+
+
+def test_a_base_through_a_symlink_loop_is_one_line(tmp_path):
+    (tmp_path / "b.yaml").symlink_to(tmp_path / "a.yaml")
+    (tmp_path / "a.yaml").symlink_to(tmp_path / "b.yaml")
+    with pytest.raises(RecipeError, match=r"a\.yaml: cannot be resolved"):
+        load_recipe(_recipe(tmp_path, "base: a.yaml\n"))

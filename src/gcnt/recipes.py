@@ -566,7 +566,11 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     """A recipe file's mapping, with ``base: other.yaml`` (relative to the file) merged under it.
     A file that is not a recipe (none of its top-level keys is a recipe key) is refused without
     quoting it: a ``base:`` may name any file."""
-    if path.resolve() in chain:
+    try:
+        resolved = path.resolve()
+    except (RuntimeError, OSError) as e:  # a symlink loop (RuntimeError up to Python 3.12)
+        raise RecipeError(f"{path}: cannot be resolved ({e})") from None
+    if resolved in chain:
         raise RecipeError(f"{path}: recipe bases form a cycle: {' -> '.join(map(str, chain))}")
     text = _read_text(path)
     try:
@@ -589,7 +593,7 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
             f"{path}: base: expected the path of a recipe file, got "
             f"{'an empty string' if isinstance(base, str) else type(base).__name__}"
         )
-    return _merge(_read_yaml(path.parent / base, (*chain, path.resolve())), data)
+    return _merge(_read_yaml(path.parent / base, (*chain, resolved)), data)
 
 
 def _yaml_problem(e: yaml.YAMLError) -> str:

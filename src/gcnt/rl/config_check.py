@@ -35,8 +35,9 @@ def check_range(config: object, rule: str, *keys: str) -> None:
 
 def memory_bytes(device: str = "cpu") -> int | None:
     """The memory a run can use on ``device``: a CUDA device's total memory, else the
-    machine's physical memory, or the cgroup's limit where that is lower (a Slurm job, a
-    container); None where it cannot be read."""
+    machine's physical memory, or the cgroup's limit or the process's address-space limit
+    (``ulimit -v``, RLIMIT_AS) where that is lower (a Slurm job, a container, a shell limit);
+    None where it cannot be read."""
     if str(device).startswith("cuda"):
         import torch
 
@@ -49,7 +50,22 @@ def memory_bytes(device: str = "cpu") -> int | None:
         limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
     except OSError:
         limit = "max"
-    return min(total, int(limit)) if limit.isdigit() else total
+    have = min(total, int(limit)) if limit.isdigit() else total
+    try:
+        import resource
+
+        soft, unlimited = resource.getrlimit(resource.RLIMIT_AS)[0], resource.RLIM_INFINITY
+    except (ImportError, OSError, ValueError):  # not a POSIX system
+        return have
+    if soft == unlimited or soft <= 0:
+        return have
+    # the limit counts the address space already mapped (torch and its libraries: GBs)
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[0])
+        mapped = pages * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        mapped = 0
+    return min(have, max(0, soft - mapped))
 
 
 def check_memory(nbytes: int, device: str, what: str, fix: str) -> None:
