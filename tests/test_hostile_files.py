@@ -67,3 +67,15 @@ def test_a_fifo_checkpoint_or_metrics_log_is_refused_not_waited_on(trained, tmp_
     _fifo(metrics)
     with pytest.raises(MetricsFileError, match="metrics.jsonl: not a regular file"):
         read_metrics(metrics)
+
+
+def test_an_eval_link_out_of_the_run_directory_is_refused(trained, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.rmtree(run / "eval", ignore_errors=True)
+    (run / "eval").symlink_to(elsewhere)
+    line = error_line(capsys, ["eval", str(run), "--robots", "train", "--episodes", "1"])
+    assert "a link out of the run directory" in line
+    assert not any(elsewhere.iterdir())

@@ -127,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         )
     check_network(recipe)
     robots = _check_benchmark(recipe, run_dir, specs)
+    run_dir.eval_dir()  # a link out of the run directory is refused before any work
     state = run_dir.load_checkpoint()
     policy = state.get("policy") or {"actor": state["actor"]}  # "actor": checkpoints before 0.2
     if args.video:
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     steps = state["env_steps"]
     failed = None
     try:
-        print(f"written: {write_eval(run_dir.path / 'eval' / name, results, steps, meta)}")
+        print(f"written: {write_eval(run_dir.eval_dir() / name, results, steps, meta)}")
     except RunDirError as e:  # a read-only or full run directory: --json is still written
         failed = e
     if args.json:

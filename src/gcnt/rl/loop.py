@@ -499,7 +499,7 @@ def _eval_specs(recipe: Recipe) -> list[str]:
 
 
 def _eval_path(run: RunDir, env_steps: int) -> Path:
-    return run.path / "eval" / f"step{env_steps}.json"
+    return run.eval_dir() / f"step{env_steps}.json"
 
 
 def _evaluate(

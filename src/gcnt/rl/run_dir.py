@@ -73,6 +73,19 @@ class RunDir:
     def checkpoint_path(self) -> Path:
         return self.path / CHECKPOINT
 
+    def eval_dir(self) -> Path:
+        """``eval/`` of the run, where evaluations are written: a RunDirError if it is a link
+        or leads out of the run directory (results would land somewhere else)."""
+        path = self.path / "eval"
+        if path.is_symlink() or (
+            path.exists() and not path.resolve().is_relative_to(self.path.resolve())
+        ):
+            raise RunDirError(
+                f"{path}: a link out of the run directory; evaluations are written only inside "
+                f"{self.path} (remove the link)"
+            )
+        return path
+
     @property
     def buffers_dir(self) -> Path:
         """Where an algorithm may checkpoint large data (replay buffers)."""
