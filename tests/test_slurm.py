@@ -9,11 +9,11 @@ leave them out with ``-m slurm`` / ``-m "not slurm"``.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -83,7 +83,8 @@ def _sweep_dir(tmp_path: Path, name: str) -> Path:
 
 
 def _manifest(sw: Path) -> list[dict]:
-    return json.loads((sw / S.MANIFEST).read_text())["runs"]
+    """The manifest's runs, paths made absolute where the sweep is (as gcnt reads them)."""
+    return [asdict(r) for r in S.Manifest.load(sw).runs]
 
 
 def _wait(what, timeout: float = 240, every: float = 0.5):

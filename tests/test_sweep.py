@@ -119,7 +119,7 @@ def test_tiny_local_sweep_runs_resumes_evaluates_and_logs_to_wandb(tmp_path: Pat
     assert not Run(runs[0].path).finished()
     assert main(["sweep", str(sw)]) == 0
     assert Run(runs[0].path).last_env_steps() >= 400
-    log = Path(json.loads((sw / S.MANIFEST).read_text())["runs"][0]["log"]).read_text()
+    log = Path(S.Manifest.load(sw).runs[0].log).read_text()
     assert "train --resume" in log
     assert main(["sweep", str(sw), "--status"]) == 0
 
@@ -130,10 +130,9 @@ def test_submitit_debug_executor(tmp_path: Path) -> None:
     sw = tmp_path / "sl"
     argv = ["sweep", str(QUICKSTART), "--executor", "debug", "--dir", str(sw), *TINY]
     assert main([*argv, "logger.backend=none"]) == 0
-    manifest = json.loads((sw / S.MANIFEST).read_text())
-    (run,) = manifest["runs"]
-    assert run["state"] == "done" and run["job_id"]
-    assert Run(run["run_dir"]).finished()
+    (run,) = S.Manifest.load(sw).runs
+    assert run.state == "done" and run.job_id
+    assert Run(run.run_dir).finished()
     assert (sw / "submitit").is_dir()
 
 
@@ -241,3 +240,32 @@ def test_a_begun_run_without_a_checkpoint_is_started_not_pending(tmp_path: Path)
     spec.refresh()
     assert spec.state == "started"
     assert "--resume" in S.commands(spec)[0][1]  # it continues, from step 0
+
+
+def test_a_moved_or_copied_sweep_works_where_it_is(tmp_path: Path, capsys) -> None:
+    """Paths inside a sweep are stored relative to it: after ``mv`` (or a copy) its runs, logs
+    and ``run_dir=`` overrides are where the sweep is now, and the move is said once."""
+    first = tmp_path / "first"
+    assert main(["sweep", str(QUICKSTART), "--dir", str(first), "--dry-run", *TINY]) == 0
+    stored = json.loads((first / S.MANIFEST).read_text())
+    assert stored["location"] == str(first)
+    assert not any(Path(r["run_dir"]).is_absolute() for r in stored["runs"])
+    moved = tmp_path / "moved"
+    shutil.move(first, moved)
+    copied = tmp_path / "copied"
+    shutil.copytree(moved, copied)
+    for where in (moved, copied):
+        capsys.readouterr()
+        runs = S.Manifest.load(where).runs
+        assert "has been moved or copied" in capsys.readouterr().err
+        for r in runs:
+            assert Path(r.run_dir).is_relative_to(where)
+            (o,) = [o for o in r.overrides if o.startswith("run_dir=")]
+            assert o == f"run_dir={r.run_dir}"
+    # a manifest written with absolute paths (before they were stored relative) moves too
+    data = json.loads((copied / S.MANIFEST).read_text())
+    for r in data["runs"]:
+        r["run_dir"] = str(first / r["run_dir"])
+    data["location"] = str(first)
+    (copied / S.MANIFEST).write_text(json.dumps(data))
+    assert all(Path(r.run_dir).is_relative_to(copied) for r in S.Manifest.load(copied).runs)

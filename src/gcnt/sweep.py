@@ -437,6 +437,9 @@ class Manifest:
 
     @classmethod
     def load(cls, sweep_dir: str | Path) -> Manifest:
+        """The manifest of ``sweep_dir``, its paths made absolute where the directory is now:
+        paths inside the sweep are stored relative to it, so a sweep that was moved or copied
+        works where it is (and says so once)."""
         path = Path(sweep_dir) / MANIFEST
         if not path.is_file():
             raise SweepError(f"{sweep_dir}: no {MANIFEST}; is this a sweep directory?")
@@ -445,6 +448,15 @@ class Manifest:
             runs = [RunSpec(**r) for r in data.pop("runs")]
         except (json.JSONDecodeError, KeyError, TypeError) as e:
             raise SweepError(f"{path}: not a sweep manifest ({e})") from None
+        here = Path(sweep_dir).absolute()
+        was = data.get("location")
+        if was and Path(was) != here:
+            log.warning(
+                "%s: this sweep was written at %s and has been moved or copied; its runs are "
+                "continued where it is now", here, was,
+            )  # fmt: skip
+        for r in runs:
+            _relocate(r, lambda p: _here(p, here, Path(was) if was else None))
         return cls(sweep_dir, runs, data)
 
     def merge(self, runs: list[RunSpec]) -> None:
@@ -476,7 +488,14 @@ class Manifest:
     def save(self) -> Path:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.meta["updated"] = now()
-        data = {**self.meta, "runs": [asdict(r) for r in self.runs]}
+        here = self.dir.absolute()
+        self.meta["location"] = str(here)
+        stored = []
+        for r in self.runs:
+            copy = RunSpec(**asdict(r))
+            _relocate(copy, lambda p: _inside(p, here))
+            stored.append(asdict(copy))
+        data = {**self.meta, "runs": stored}
         tmp = self.path.with_suffix(".tmp")
         tmp.write_text(json.dumps(data, indent=1))
         os.replace(tmp, self.path)
@@ -499,6 +518,44 @@ class Manifest:
             job = f"  {r.job_id or '-':<12}" if jobs else ""
             lines.append(f"{r.id:<{width}}  {r.state:<9}  {steps:>9}{job}  {ev}")
         return "\n".join(lines)
+
+
+def _inside(path: str, base: Path) -> str:
+    """``path`` (absolute, or relative to the working folder) relative to ``base`` where it lies
+    inside it, else absolute."""
+    p = Path(path).absolute()
+    try:
+        return str(p.relative_to(base))
+    except ValueError:
+        return str(p)
+
+
+def _here(path: str, base: Path, was: Path | None) -> str:
+    """A stored path made absolute: relative ones against ``base`` (the sweep directory now),
+    absolute ones inside ``was`` (where the sweep was saved, for manifests that stored absolute
+    paths) moved along with the sweep."""
+    p = Path(path)
+    if not p.is_absolute():
+        # manifests without a location stored paths relative to the working folder
+        return str(base / p) if was is not None else path
+    if was is not None and was != base:
+        try:
+            return str(base / p.relative_to(was))
+        except ValueError:
+            pass
+    return path
+
+
+def _relocate(spec: RunSpec, move: Callable[[str], str]) -> None:
+    """Apply ``move`` to the paths of ``spec`` that name places in the sweep: its run
+    directory (also in its ``run_dir=`` override) and its log."""
+    spec.run_dir = move(spec.run_dir)
+    if spec.log:
+        spec.log = move(spec.log)
+    spec.overrides = [
+        f"run_dir={move(o[len('run_dir=') :])}" if o.startswith("run_dir=") else o
+        for o in spec.overrides
+    ]
 
 
 class SweepLock:
