@@ -151,3 +151,21 @@ def test_a_non_finite_return_is_a_gap_with_a_warning_not_a_line_across(tmp_path,
     by_step = {r["env_steps"]: r["mean"] for r in rows}
     assert math.isnan(float(by_step["1200"]))
     assert float(by_step["600"]) == pytest.approx(6.0) and float(by_step["1800"]) == 18.0
+
+
+def test_a_folder_it_cannot_write_is_one_error_line(tmp_path, capsys, monkeypatch):
+    """A read-only run directory (simulated: tests may run as root, which writes anywhere) or a
+    full disk while writing the figures is one line that says how to write elsewhere."""
+    import errno
+
+    make_run(tmp_path, "gcnt", 0, [600, 1200], lambda s: s / 100)
+
+    def read_only(rows, path):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(curves, "write_csv", read_only)
+    capsys.readouterr()
+    assert main(["curves", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert "curves.csv: cannot write (Permission denied); --out DIR writes elsewhere" in err

@@ -13,6 +13,7 @@ its positional words (recipe, ``key=value`` overrides) may come in any order.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -154,11 +155,27 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("gcnt: interrupted", file=sys.stderr)
         return 130
+    except OSError as e:
+        if args.verbose or e.errno not in _WRITE_ERRNOS:
+            raise
+        # a folder it cannot write (read-only, someone else's) or a full disk: one line
+        hint = "; --out DIR writes elsewhere" if hasattr(args, "out") else ""
+        print(
+            f"gcnt {args.command}: error: {e.filename or 'a file'}: cannot write "
+            f"({e.strerror}){hint}",
+            file=sys.stderr,
+        )
+        return 2
     except Exception as e:
         if args.verbose or not isinstance(e, _user_errors()):
             raise
         print(f"gcnt {args.command}: error: {_one_line(str(e))}", file=sys.stderr)
         return 2
+
+
+#: errors of writing output, reported in one line: permission denied, a read-only file system,
+#: no space left, a disk quota exceeded
+_WRITE_ERRNOS = (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT)
 
 
 def _one_line(message: str) -> str:
