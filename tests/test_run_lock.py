@@ -173,3 +173,20 @@ def test_sigusr2_checkpoints_every_stacked_seed(tmp_path: Path) -> None:
     steps = [RunDir(s).load_checkpoint()["env_steps"] for s in seeds]
     assert steps[0] == steps[1] > 0
     assert all(holder(s) is None for s in seeds)
+
+
+def test_a_stop_during_the_final_evaluation_is_said(monkeypatch, tmp_path: Path) -> None:
+    """A stop signal that arrives while the final evaluation runs does not cut it short (the
+    run finished training and is checkpointed): it is said, not silently deferred."""
+    from gcnt.rl import loop
+
+    said: list[str] = []
+    monkeypatch.setattr(loop, "_evaluate", lambda *a: {"hopper_3": {}})
+    monkeypatch.setattr(loop.stop, "requested", lambda: "SIGTERM")
+    monkeypatch.setattr(loop.log, "warning", lambda msg, *a: said.append(msg % a))
+    run = RunDir(tmp_path / "run")
+    assert loop.finish(None, run, None, None, 100) == {"hopper_3": {}}
+    assert len(said) == 1 and "SIGTERM arrived during the final evaluation" in said[0]
+    said.clear()
+    loop.finish(None, run, None, None, 100, evaluate_now=False)
+    assert not said

@@ -385,6 +385,14 @@ def finish(
     """The final evaluation (unless not ``evaluate_now``), and the logger's run closed; returns
     the evaluation's results per robot (None when none ran)."""
     results = _evaluate(recipe, run, algo, logger, env_steps) if evaluate_now else None
+    signame = stop.requested()
+    if signame is not None and evaluate_now:
+        # training was already complete and checkpointed; the evaluation is not cut short
+        log.warning(
+            "%s arrived during the final evaluation of %s: the run had finished training (its "
+            "last checkpoint is written), so the evaluation was completed before stopping",
+            signame, run.path,
+        )  # fmt: skip
     if logger is not None and hasattr(getattr(logger, "experiment", None), "finish"):
         logger.experiment.finish()
     return results
