@@ -190,3 +190,29 @@ def test_a_stop_during_the_final_evaluation_is_said(monkeypatch, tmp_path: Path)
     said.clear()
     loop.finish(None, run, None, None, 100, evaluate_now=False)
     assert not said
+
+
+def test_a_run_that_fails_before_logging_anything_leaves_no_directory(
+    monkeypatch, tmp_path: Path, capsys
+) -> None:
+    """A failure found after the run directory was made (a robot the physics refuses at its
+    first step, a full disk) removes what the failed start made, so that the same command runs
+    again once the cause is fixed; a run that logged something is kept."""
+    from cli_helpers import tiny_td3_recipe
+
+    from gcnt.rl import loop
+
+    recipe = tiny_td3_recipe(tmp_path / "tiny.yaml")
+    run = tmp_path / "run"
+    real = loop.train
+
+    def fails_at_once(recipe, run_dir, **kw):
+        raise ValueError("robot 'x': the physics refused it at its first step")
+
+    monkeypatch.setattr(loop, "train", fails_at_once)
+    with pytest.raises(ValueError, match="first step"):
+        gcnt(["train", str(recipe), f"run_dir={run}"])
+    assert not run.exists()
+    monkeypatch.setattr(loop, "train", real)
+    assert gcnt(["train", str(recipe), f"run_dir={run}"]) == 0  # the same command, again
+    assert RunDir(run).has_checkpoint()

@@ -53,9 +53,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.recipes import RecipeError
     from gcnt.rl.run_dir import RunDir
-    from gcnt.rl.run_lock import run_lock
 
     if args.init_from is not None:
         if args.resume:
@@ -67,6 +66,20 @@ def _run(args: argparse.Namespace) -> int:
         args.overrides = [*args.overrides, f"init_from={json.dumps(args.init_from)}"]
     if args.seeds is not None:
         return _run_seeds(args)
+    made: list[RunDir] = []  # a new run's directory, once this command created it
+    try:
+        return _train_one(args, made)
+    except BaseException:
+        if made and made[0].discard_failed_start():
+            log.info("removed %s: the run failed before it logged anything", made[0].path)
+        raise
+
+
+def _train_one(args: argparse.Namespace, made: list) -> int:
+    from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.rl.run_dir import RunDir
+    from gcnt.rl.run_lock import run_lock
+
     with contextlib.ExitStack() as held:  # the run directory's lock, held until the end
         if args.resume:
             overrides = [args.recipe, *args.overrides] if args.recipe else args.overrides
@@ -82,6 +95,8 @@ def _run(args: argparse.Namespace) -> int:
             recipe = load_recipe(args.recipe, args.overrides)
             run_dir = RunDir.for_recipe(recipe)
             resume = False
+            if not run_dir.path.exists():
+                made.append(run_dir)
             if run_dir.path.is_dir():  # a second writer stops before the build below
                 run_dir.check_new()  # a run there is refused without a trace left
                 held.enter_context(run_lock(run_dir.path))

@@ -11,6 +11,7 @@ import hashlib
 import logging
 import os
 import random
+import shutil
 from collections import OrderedDict
 from collections.abc import Iterator
 from pathlib import Path
@@ -139,6 +140,19 @@ class RunDir:
             return read_metrics(self.metrics_path)
         except MetricsFileError as e:
             raise RunDirError(str(e)) from None
+
+    def discard_failed_start(self) -> bool:
+        """Remove this directory if a run that failed to start made it and left nothing of
+        value (no checkpoint, no logged row, no evaluation), so that the same command can be run
+        again once the cause is fixed; whether it was removed."""
+        if not self.path.is_dir() or self.has_checkpoint():
+            return False
+        if self.metrics_path.exists() and self.metrics_path.stat().st_size:
+            return False
+        if (self.path / "eval").exists():
+            return False
+        shutil.rmtree(self.path, ignore_errors=True)
+        return not self.path.exists()
 
     def set_aside_metrics(self) -> Path | None:
         """Rename the metrics of a run restarted from scratch (killed before its first
