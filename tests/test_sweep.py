@@ -3,6 +3,7 @@ evaluated and read back from W&B's offline files; the submitit path with its deb
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -212,7 +213,7 @@ def test_a_task_at_the_time_limit_stops_its_trainer_and_resubmits_itself(tmp_pat
     task._proc = subprocess.Popen([sys.executable, "-c", stand_in], stdout=subprocess.PIPE)
     assert task._proc.stdout.readline().strip() == b"up"
     S.write_record(sweep, spec, "running", attempt=1)
-    args = (S.asdict(spec), 1, str(sweep))
+    args = (dataclasses.asdict(spec), 1, str(sweep))
     again = task.checkpoint(*args)
     assert task._proc.returncode == 75
     assert isinstance(again.function, S.SweepTask) and again.args == args

@@ -155,19 +155,18 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("gcnt: interrupted", file=sys.stderr)
         return 130
-    except OSError as e:
-        if args.verbose or e.errno not in _WRITE_ERRNOS:
-            raise
-        # a folder it cannot write (read-only, someone else's) or a full disk: one line
-        hint = "; --out DIR writes elsewhere" if hasattr(args, "out") else ""
-        print(
-            f"gcnt {args.command}: error: {e.filename or 'a file'}: cannot write "
-            f"({e.strerror}){hint}",
-            file=sys.stderr,
-        )
-        return 2
     except Exception as e:
-        if args.verbose or not isinstance(e, _user_errors()):
+        if args.verbose:
+            raise
+        if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS and e.filename:
+            # a folder it cannot write (read-only, someone else's) or a full disk: one line
+            hint = "; --out DIR writes elsewhere" if hasattr(args, "out") else ""
+            print(
+                f"gcnt {args.command}: error: {e.filename}: cannot write ({e.strerror}){hint}",
+                file=sys.stderr,
+            )
+            return 2
+        if not isinstance(e, _user_errors()):
             raise
         print(f"gcnt {args.command}: error: {_one_line(str(e))}", file=sys.stderr)
         return 2

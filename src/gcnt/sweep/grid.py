@@ -1,0 +1,197 @@
+"""The grid of a sweep: recipes x methods x seeds (or x robots, ``--per-robot``) expanded into
+:class:`~gcnt.sweep.spec.RunSpec` s, with each run's directory, overrides and W&B names."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from gcnt.sweep.spec import RunSpec
+from gcnt.sweep.status import SweepError, slug
+
+if TYPE_CHECKING:
+    from gcnt.recipes import Recipe
+
+
+def _method_override(override: str) -> tuple[str, str] | None:
+    """``METHOD:key=value`` -> (METHOD, ``key=value``); a plain override -> None."""
+    head, sep, rest = override.partition(":")
+    if sep and "=" in rest and "=" not in head and "." not in head:
+        return head, rest
+    return None
+
+
+def _split_method_overrides(
+    overrides: Sequence[str], methods: Sequence[str]
+) -> dict[str, list[str]]:
+    """``METHOD:key=value`` applies to that method only; plain ``key=value`` to all."""
+    per: dict[str, list[str]] = {m: [] for m in methods}
+    for o in overrides:
+        if (split := _method_override(o)) is not None:
+            head, rest = split
+            if head not in per:
+                raise SweepError(
+                    f"override {o!r} names method {head!r}, which is not in the sweep "
+                    f"({', '.join(methods)})"
+                )
+            per[head].append(rest)
+        else:
+            for m in methods:
+                per[m].append(o)
+    return per
+
+
+def per_robot_runs(split: str | Sequence[str]) -> list[tuple[str, str]]:
+    """(robot name, spec to train it alone) for each robot of ``split``: a robot spec as
+    ``env.robots`` takes it (``Unimal:train``, ``CWHH++:test``, a robot name, an .xml file or
+    folder), or several, comma-separated or as a list."""
+    from gcnt.morphology import resolve_robots
+    from gcnt.morphology.catalogues import robot_catalogue
+
+    specs = [t.strip() for t in split.split(",")] if isinstance(split, str) else list(split)
+    specs = [s for s in specs if s]
+    if not specs:
+        raise SweepError("--per-robot: give a robot split, e.g. Unimal:train")
+    try:
+        robots = resolve_robots(specs)
+    except (ValueError, OSError) as e:
+        raise SweepError(f"--per-robot {','.join(specs)}: {e}") from None
+    # a catalogue robot by its name; a robot loaded from a file by that file
+    return [(r.name, r.name if robot_catalogue(r.name) else r.source) for r in robots]
+
+
+def robot_overrides(spec: str) -> list[str]:
+    """The overrides that train one robot alone (JSON strings are YAML scalars: paths quoted)."""
+    return [f"env.robots=[{json.dumps(spec)}]", "env.test_robots=[]"]
+
+
+def _sets_robots(override: str) -> bool:
+    split = _method_override(override)
+    key = (split[1] if split else override).split("=", 1)[0].strip()
+    return key in ("env.robots", "env.test_robots", "env")
+
+
+def expand(
+    recipes: Sequence[str | Path],
+    sweep_dir: str | Path,
+    *,
+    methods: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+    overrides: Sequence[str] = (),
+    evals: Sequence[str] = (),
+    eval_episodes: int | None = None,
+    eval_deterministic: bool | None = None,
+    group: str | None = None,
+    per_robot: str | Sequence[str] | None = None,
+) -> list[RunSpec]:
+    """The runs of recipes x methods x [robots] x seeds (default: each recipe's own method and
+    seed). With ``per_robot`` (a robot split, see :func:`per_robot_runs`), one run per robot of
+    the split, each trained alone.
+
+    Each combination is loaded and validated now, so that a bad recipe or override fails before
+    anything runs (a :class:`SweepError` naming it).
+    """
+    from gcnt.recipes import RecipeError, read_recipe_file, recipe_from_dict
+
+    sweep_dir = Path(sweep_dir).resolve()
+    group = group or sweep_dir.name
+    robots: list[tuple[str | None, list[str]]] = [(None, [])]
+    if per_robot is not None:
+        if bad := [o for o in overrides if _sets_robots(o)]:
+            raise SweepError(
+                f"--per-robot sets env.robots and env.test_robots of every run; drop {bad[0]!r}"
+            )
+        if "test" in evals:
+            raise SweepError("--per-robot runs have no test robots: --eval test evaluates nothing")
+        robots = [(name, robot_overrides(spec)) for name, spec in per_robot_runs(per_robot)]
+    specs: list[RunSpec] = []
+    seen: dict[str, str] = {}
+    for recipe_path in recipes:
+        recipe_path = Path(recipe_path)
+        if not recipe_path.is_file():
+            raise SweepError(f"{recipe_path}: no such recipe file")
+        source = str(recipe_path)
+        try:
+            data = read_recipe_file(recipe_path)  # read once: a per-robot sweep loads it often
+            base = recipe_from_dict(data, [*_plain(overrides), *robots[0][1]], source)
+        except RecipeError as e:
+            raise SweepError(str(e)) from None
+        ms = list(methods or [base.network.name])
+        per_method = _split_method_overrides(overrides, ms)
+        for m in ms:
+            for robot, robot_ovr in robots:
+                for s in seeds if seeds is not None else [base.seed]:
+                    given = [*per_method[m], *robot_ovr, f"network.name={m}", f"seed={s}"]
+                    try:
+                        r = recipe_from_dict(data, given, source)
+                    except RecipeError as e:
+                        raise SweepError(str(e)) from None
+                    spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
+                    spec.evals, spec.eval_episodes = list(evals), eval_episodes
+                    spec.eval_deterministic = eval_deterministic
+                    specs.append(spec)
+    if not specs:
+        raise SweepError("the sweep has no runs (no recipes?)")
+    return specs
+
+
+def _spec(
+    recipe_path: Path,
+    r: Recipe,
+    method: str,
+    robot: str | None,
+    given: list[str],
+    sweep_dir: Path,
+    group: str,
+    seen: dict[str, str],
+) -> RunSpec:
+    task, algo, seed = str(r.task or "custom"), str(r.algo), int(r.seed)
+    shown = slug(r.label) if r.label else method
+    run_id = f"{slug(task)}/{algo}-{shown}/{'' if robot is None else slug(robot) + '/'}seed{seed}"
+    if run_id in seen:
+        raise SweepError(
+            f"{recipe_path} and {seen[run_id]} give the same run {run_id}: "
+            "give the recipes different task names (task=...) or labels (label=...)"
+        )
+    seen[run_id] = str(recipe_path)
+    run_dir = sweep_dir / run_id
+    name = "-".join([task, algo, r.label or method, *([robot] if robot else []), f"seed{seed}"])
+    return RunSpec(
+        id=run_id,
+        run_dir=str(run_dir),
+        recipe=str(recipe_path.resolve()),
+        task=task,
+        algo=algo,
+        method=method,
+        seed=seed,
+        overrides=[*given, f"run_dir={run_dir}", f"logger.group={group}", f"logger.name={name}"],
+        robot=robot,
+    )
+
+
+def default_dir(
+    recipes: Sequence[str | Path],
+    overrides: Sequence[str] = (),
+    per_robot: str | Sequence[str] | None = None,
+) -> Path:
+    """``sweeps/<task>`` (the recipes' tasks joined by ``-``)."""
+    from gcnt.recipes import RecipeError, load_recipe
+
+    given = _plain(overrides)
+    if per_robot is not None:  # a single-robot recipe on its first robot
+        given += robot_overrides(per_robot_runs(per_robot)[0][1])
+    tasks = []
+    for r in recipes:
+        try:
+            rec = load_recipe(r, given)
+        except RecipeError as e:
+            raise SweepError(str(e)) from None
+        tasks.append(slug(str(rec.task or "x")))
+    return Path("sweeps") / "-".join(dict.fromkeys(tasks))
+
+
+def _plain(overrides: Sequence[str]) -> list[str]:
+    """Overrides that apply to every method (``METHOD:key=value`` ones left out)."""
+    return [o for o in overrides if _method_override(o) is None]
