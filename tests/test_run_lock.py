@@ -216,3 +216,23 @@ def test_a_run_that_fails_before_logging_anything_leaves_no_directory(
     monkeypatch.setattr(loop, "train", real)
     assert gcnt(["train", str(recipe), f"run_dir={run}"]) == 0  # the same command, again
     assert RunDir(run).has_checkpoint()
+
+
+def test_a_full_disk_when_a_run_starts_is_one_line_and_leaves_nothing(
+    monkeypatch, tmp_path: Path, capsys
+) -> None:
+    import errno
+
+    from cli_helpers import error_line, tiny_td3_recipe
+
+    recipe = tiny_td3_recipe(tmp_path / "tiny.yaml")
+    run = tmp_path / "run"
+
+    def full(self, recipe):
+        self.path.mkdir(parents=True, exist_ok=True)
+        raise OSError(errno.ENOSPC, "No space left on device", str(self.path / "recipe.yaml"))
+
+    monkeypatch.setattr(RunDir, "create", full)
+    line = error_line(capsys, ["train", str(recipe), f"run_dir={run}"])
+    assert "recipe.yaml: cannot write (No space left on device); free space" in line
+    assert not run.exists()

@@ -158,11 +158,16 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:
         if args.verbose:
             raise
-        if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS and e.filename:
+        if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS:
             # a folder it cannot write (read-only, someone else's) or a full disk: one line
-            hint = "; --out DIR writes elsewhere" if hasattr(args, "out") else ""
+            hint = (
+                "; --out DIR writes elsewhere"
+                if hasattr(args, "out")
+                else "; free space, or work on a copy in a folder you can write"
+            )
             print(
-                f"gcnt {args.command}: error: {e.filename}: cannot write ({e.strerror}){hint}",
+                f"gcnt {args.command}: error: {e.filename or 'writing'}: cannot write "
+                f"({e.strerror or e}){hint}",
                 file=sys.stderr,
             )
             return 2
