@@ -5,6 +5,8 @@ built on them are in ``conftest.py``."""
 
 from __future__ import annotations
 
+import subprocess
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -71,3 +73,13 @@ def error_line(capsys, argv: list[str]) -> str:
     lines = [line for line in err.splitlines() if line.startswith("gcnt ")]
     assert len(lines) == 1 and ": error: " in lines[0], err
     return lines[0]
+
+
+def wait_for_metrics(paths: list[Path], proc: subprocess.Popen, timeout: float = 600) -> None:
+    """Wait until a training process started with :class:`subprocess.Popen` has logged a metrics
+    row in every one of ``paths`` (it must not exit first)."""
+    t0 = time.monotonic()
+    while not all(p.is_file() and p.stat().st_size for p in paths):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() - t0 < timeout, "training did not start"
+        time.sleep(0.2)

@@ -8,11 +8,11 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import yaml
+from cli_helpers import wait_for_metrics
 from test_ppo import tiny_recipe
 
 from gcnt.cli import main as gcnt
@@ -36,12 +36,7 @@ def test_sigterm_stops_a_multi_process_collector_cleanly_and_the_run_resumes(tmp
         text=True,
     )
     try:
-        t0 = time.monotonic()
-        metrics = run / "metrics.jsonl"
-        while not (metrics.is_file() and metrics.stat().st_size):
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() - t0 < 600, "training did not start"
-            time.sleep(0.2)
+        wait_for_metrics([run / "metrics.jsonl"], proc)
         proc.send_signal(signal.SIGTERM)
         _, stderr = proc.communicate(timeout=300)
     finally:

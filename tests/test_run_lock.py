@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_helpers import wait_for_metrics
 
 from gcnt.cli import main as gcnt
 from gcnt.rl.run_dir import RunDir
@@ -119,21 +120,13 @@ def _start_training(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, Path
     return proc, run
 
 
-def _wait_for_metrics(paths: list[Path], proc: subprocess.Popen, timeout: float = 600) -> None:
-    t0 = time.monotonic()
-    while not all(p.is_file() and p.stat().st_size for p in paths):
-        assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() - t0 < timeout, "training did not start"
-        time.sleep(0.2)
-
-
 @pytest.mark.slow
 def test_sigterm_checkpoints_exits_75_and_a_second_writer_stops_at_once(
     tmp_path: Path, capsys
 ) -> None:
     proc, run = _start_training(tmp_path)
     try:
-        _wait_for_metrics([run / "metrics.jsonl"], proc)
+        wait_for_metrics([run / "metrics.jsonl"], proc)
         assert not RunDir(run).has_checkpoint()  # the first scheduled one is far away
         # a second writer: one line naming the holder, before any work
         capsys.readouterr()
@@ -162,7 +155,7 @@ def test_sigusr2_checkpoints_every_stacked_seed(tmp_path: Path) -> None:
     proc, run = _start_training(tmp_path, "--seeds", "0,1")
     seeds = [run / "seed0", run / "seed1"]
     try:
-        _wait_for_metrics([s / "metrics.jsonl" for s in seeds], proc)
+        wait_for_metrics([s / "metrics.jsonl" for s in seeds], proc)
         assert all(holder(s).pid == proc.pid for s in seeds)
         proc.send_signal(signal.SIGUSR2)
         _, stderr = proc.communicate(timeout=300)
