@@ -65,6 +65,9 @@ def resolved_spec(spec: str) -> str:
     """What a robot spec names, independent of the working folder: a robot file or folder as
     its resolved path and a hash of its content (every robot file of a folder), anything else
     (a robot name, ``Benchmark:split``, a pattern) as typed."""
+    from gcnt.files import read_regular
+    from gcnt.morphology.robot import MAX_ROBOT_FILE_BYTES
+
     path = Path(spec)
     try:
         if path.is_file():
@@ -74,8 +77,9 @@ def resolved_spec(spec: str) -> str:
         else:
             return spec
         digest = hashlib.sha256()
-        for f in files:
-            digest.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+        for f in files:  # read as the robot loader reads them: regular files of a sane size
+            data = read_regular(f, MAX_ROBOT_FILE_BYTES, "a robot file is MJCF XML", OSError)
+            digest.update(f.name.encode() + b"\0" + data + b"\0")
         return f"{path.resolve()}#{digest.hexdigest()[:16]}"
     except OSError:
         return spec
