@@ -71,17 +71,31 @@ def test_every_help_prints(command, capsys):
     assert stop.value.code == 0 and "usage: gcnt" in capsys.readouterr().out
 
 
-def test_bench_train_defaults_to_the_quick_start():
+def test_bench_train_defaults_to_the_quick_start(tmp_path, monkeypatch):
     from gcnt.commands.bench_train import recipe_and_overrides
 
+    monkeypatch.chdir(ROOT)
     args = build_parser(only="bench-train").parse_args(["bench-train"])
-    assert args.recipe == "recipes/quickstart.yaml" and (ROOT / args.recipe).exists()
+    assert recipe_and_overrides(args.recipe, args.overrides) == ("recipes/quickstart.yaml", [])
     args = build_parser(only="bench-train").parse_args(["bench-train", "a.b=1", "c=2"])
     assert recipe_and_overrides(args.recipe, args.overrides) == (
         "recipes/quickstart.yaml",
         ["a.b=1", "c=2"],
     )
     assert recipe_and_overrides("R.yaml", ["a=1"]) == ("R.yaml", ["a=1"])
+    # outside the repository: the checkout's quick start, by its full path
+    monkeypatch.chdir(tmp_path)
+    recipe, overrides = recipe_and_overrides(None, ["a=1"])
+    assert Path(recipe) == ROOT / "recipes/quickstart.yaml" and overrides == ["a=1"]
+
+
+def test_no_default_recipe_outside_a_checkout_is_one_line(tmp_path, monkeypatch):
+    import gcnt.recipes as recipes
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(recipes, "__file__", str(tmp_path / "site-packages/gcnt/recipes.py"))
+    with pytest.raises(recipes.RecipeError, match="pass a recipe file"):
+        recipes.default_recipe()
 
 
 # ------------------------------------------------------------------ run directories

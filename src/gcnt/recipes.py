@@ -604,6 +604,28 @@ def _yaml_problem(e: yaml.YAMLError) -> str:
     return f"{problem}{where}"
 
 
+#: the recipe the benchmark commands use when none is given
+QUICKSTART = "recipes/quickstart.yaml"
+
+
+def default_recipe(relative: str = QUICKSTART) -> str:
+    """A recipe of the repository's ``recipes/`` folder, as a path that works from any folder:
+    ``relative`` itself when the current folder holds it (a command run from the repository
+    root prints the short path), else the same file in the checkout gcnt was installed from
+    (``pip install -e .``: the package sits in ``<checkout>/src/gcnt``). A RecipeError when
+    neither exists (gcnt installed from a wheel, which holds no recipes)."""
+    if Path(relative).is_file():
+        return relative
+    checkout = Path(__file__).resolve().parents[2]
+    candidate = checkout / relative
+    if candidate.is_file():
+        return str(candidate)
+    raise RecipeError(
+        f"no recipe given and {relative} is neither in the current folder nor in a gcnt "
+        f"checkout ({checkout}); pass a recipe file"
+    )
+
+
 def read_recipe_file(path: str | Path) -> dict[str, Any]:
     """A recipe file's mapping with its bases merged in, not yet validated (``load_recipe`` is
     ``recipe_from_dict(read_recipe_file(path), overrides, source=path)``)."""

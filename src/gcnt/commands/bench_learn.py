@@ -15,7 +15,9 @@ import time
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recipe", nargs="?", default="recipes/quickstart.yaml")
+    p.add_argument(
+        "recipe", nargs="?", help="recipe file (default: recipes/quickstart.yaml, from any folder)"
+    )
     p.add_argument("overrides", nargs="*", help="dotted recipe overrides")
     p.add_argument("--seeds", default="0,1", metavar="S1,S2,...", help="seeds (default: 0,1)")
     p.add_argument("--min-gain", type=float, default=100.0, help="final - random must exceed this")
@@ -56,7 +58,10 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.rl.td3.stacked_loop import parse_seeds
 
     seeds = parse_seeds(args.seeds)
-    results = [learning_check(args.recipe, args.overrides, s) for s in seeds]
+    from gcnt.recipes import default_recipe
+
+    recipe = args.recipe or default_recipe()
+    results = [learning_check(recipe, args.overrides, s) for s in seeds]
     ok = True
     print(f"{'seed':>4}  {'random':>8}  {'final':>8}  {'minutes':>7}  per robot (final)")
     for r in results:

@@ -29,21 +29,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import tempfile
 import time
 from pathlib import Path
 
-DEFAULT_RECIPE = "recipes/quickstart.yaml"
+from gcnt.recipes import QUICKSTART, default_recipe
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "recipe",
         nargs="?",
-        default=DEFAULT_RECIPE,
+        default=None,
         # written out: argparse's intermixed parsing hides a positional's default while it
         # prints --help, so "%(default)s" would fail there
-        help="recipe file (default: recipes/quickstart.yaml)",
+        help=f"recipe file (default: {QUICKSTART}, found from any folder)",
     )
     p.add_argument("overrides", nargs="*", help="dotted recipe overrides")
     p.add_argument("--updates", type=int, default=30, help="bare updates to time")
@@ -73,9 +74,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def recipe_and_overrides(recipe: str, overrides: list[str]) -> tuple[str, list[str]]:
     """``gcnt bench-train key=value ...`` without a recipe: the quick start with those
-    overrides (argparse takes the first word for the optional recipe)."""
+    overrides (argparse takes the first word for the optional recipe); no recipe at all: the
+    quick start (:func:`gcnt.recipes.default_recipe`: from any folder)."""
+    if recipe is None:
+        return default_recipe(), list(overrides)
     if "=" in recipe and not Path(recipe).exists():
-        return DEFAULT_RECIPE, [recipe, *overrides]
+        return default_recipe(), [recipe, *overrides]
     return recipe, list(overrides)
 
 
@@ -273,29 +277,60 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
     random ones, collected in the recipe's own batches (``td3.steps_per_batch`` lockstep steps).
     The warm-up covers at least a mini-batch of every robot, so that each timed step is followed
     by its updates (the schedule waits for full mini-batches: steps before that would count as
-    time without updates)."""
+    time without updates).
+
+    A metrics row is logged after every collected batch, with the rates of that batch alone;
+    the timed window is the batches the policy acted in (after the random phase, rounded up to
+    whole batches as training rounds it): their steps, updates and seconds summed. The batch
+    that ends the random phase is left out: it is collected with random actions."""
     from gcnt.rl.factories import train_robots
 
     warmup = max(warmup, recipe.td3.batch_size * len(train_robots(recipe)))
     recipe.td3.init_random_frames = warmup
     recipe.collector.total_frames = warmup + steps
-    all_rows = _train_quietly(recipe, max(1, warmup))
-    rows = [r for r in all_rows if r["env_steps"] > warmup]
-    before = [r for r in all_rows if r["env_steps"] <= warmup]
-    span = rows[-1]["env_steps"] - warmup
+    all_rows = _train_quietly(recipe, 1)
+    random_end = recipe.resolved["init_random_frames"]
+    prev = [r for r in all_rows if r["env_steps"] <= random_end]
+    rows = [r for r in all_rows if r["env_steps"] > random_end]
+    if not prev or not rows:
+        from gcnt.recipes import RecipeError
+
+        raise RecipeError(
+            f"bench-train: no batch after the random phase ({random_end} env steps) within "
+            f"{warmup + steps}: raise --steps"
+        )
     secs = sum(
         (r["env_steps"] - p["env_steps"]) / r["env_steps_per_s"]
-        for p, r in zip([{"env_steps": warmup}, *rows], rows, strict=False)
+        for p, r in zip([prev[-1], *rows], rows, strict=False)
     )
-    updates = rows[-1]["updates"] - before[-1]["updates"] if before else rows[-1]["updates"]
-    return {"env_steps_per_s": span / secs, "updates_per_s": updates / secs, "updates": updates}
+    span = rows[-1]["env_steps"] - prev[-1]["env_steps"]
+    updates = rows[-1]["updates"] - prev[-1]["updates"]
+    return {
+        "env_steps_per_s": span / secs,
+        "updates_per_s": updates / secs,
+        "updates": updates,
+        "env_steps": span,
+    }
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.recipes import load_recipe
 
     args.recipe, args.overrides = recipe_and_overrides(args.recipe, args.overrides)
     recipe = load_recipe(args.recipe, args.overrides)
+    # the report alone on the terminal: the training it times logs warnings only
+    logger = logging.getLogger("gcnt")
+    level = logger.level
+    logger.setLevel(logging.WARNING)
+    try:
+        return _measure(args, recipe)
+    finally:
+        logger.setLevel(level)
+
+
+def _measure(args: argparse.Namespace, recipe) -> int:
+    from gcnt.recipes import RecipeError
+
     if not args.json:
         print(f"recipe: {args.recipe} ({recipe.algo}, {recipe.network.name})")
     if recipe.algo == "ppo":
@@ -477,7 +512,8 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         print(
             f"{schedule:6s} end to end {row['end_to_end_env_steps_per_s']:8.2f} env steps/s, "
             f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates); "
-            f"ratio to the bare update {row['ratio']:.3f}"
+            f"ratio to the bare update {row['ratio']:.3f} (the share of the time spent in "
+            "updates; the rest is the env, collection and replay)"
         )
     print(device_line(recipe.device))
     return 0

@@ -1,0 +1,31 @@
+"""``gcnt bench-train``'s end-to-end window and report (the arithmetic: test_bench_arithmetic)."""
+
+from __future__ import annotations
+
+import logging
+
+from gcnt.cli import main as gcnt
+from gcnt.commands.bench_train import end_to_end_rate
+from gcnt.recipes import load_recipe
+
+
+def test_end_to_end_counts_the_updates_of_the_timed_steps_only(recipe_file):
+    # one robot, mixed schedule, one update per env step: every timed batch of 5 steps is
+    # followed by 5 updates. A warm-up that is not a whole number of batches (22: training
+    # rounds it to 25) must not add the updates of the batch that ends the random phase.
+    recipe = load_recipe(recipe_file, ["td3.schedule=mixed", "td3.updates_per_step=1"])
+    out = end_to_end_rate(recipe, warmup=22, steps=30)
+    assert out["env_steps"] >= 25 and out["env_steps"] % 5 == 0
+    assert out["updates"] == out["env_steps"]
+    assert out["updates_per_s"] == out["env_steps_per_s"]
+
+
+def test_the_report_is_not_mixed_with_training_log_lines(recipe_file, caplog, capsys):
+    caplog.set_level(logging.INFO)
+    argv = ["bench-train", str(recipe_file), "--updates", "2", "--steps", "10", "--warmup", "8"]
+    assert gcnt(argv) == 0
+    assert not [r for r in caplog.records if r.levelno < logging.WARNING]
+    out = capsys.readouterr().out
+    assert "ratio to the bare update" in out and "share of the time spent in updates" in out
+    # the level is restored afterwards: other commands in the process log as before
+    assert logging.getLogger("gcnt").level <= logging.INFO
