@@ -1,5 +1,6 @@
 """The quick-start notebook runs top to bottom (nbclient, the current interpreter's kernel) and
-shows its plots inline (PNG outputs of the cells, as in Jupyter)."""
+shows its plots inline (PNG outputs of the cells, as in Jupyter); it replaces a stage of GCNT's
+chain, registers the result as a method and trains that method through the Python API."""
 
 from __future__ import annotations
 
@@ -23,6 +24,8 @@ def test_quickstart_notebook_executes(tmp_path: Path) -> None:
     outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
     assert not [o for o in outputs if o.get("output_type") == "error"]
     text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
-    assert "gcnt" in text and "finished: True" in text and "curves.png" in text
+    assert "finished: True" in text and "curves.png" in text
+    # the replaced stage is the MLP, and the trained run is the method registered in the notebook
+    assert "Sequential(" in text and "gcnt_mlp_encoder 0 finished" in text
     images = [o for o in outputs if "image/png" in o.get("data", {})]
     assert len(images) == 2  # the rollout's rewards (matplotlib inline) and the learning curve
