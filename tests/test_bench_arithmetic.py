@@ -31,3 +31,15 @@ def test_arithmetic_share_of_the_peak():
     assert math.isclose(a["gflops_per_s"], 20.0)
     assert math.isclose(a["share_of_peak"], 0.2)
     assert matmul_peak_gflops(size=64, repeats=2) > 0
+
+
+def test_count_launches_counts_the_top_level_operators_on_a_cpu():
+    from gcnt.commands.bench_train import count_launches, launch_line
+
+    x = torch.randn(8, 8)
+    # three operators called by the caller; mm's own internals are not counted again
+    assert count_launches(lambda: (x @ x).relu().sum()) == 3
+    lin = torch.nn.Linear(8, 4)
+    one = count_launches(lambda: lin(x))
+    assert count_launches(lambda: [lin(x) for _ in range(5)]) == 5 * one
+    assert "dispatched operators per update: 2.0 us per launch" in launch_line(1000, 2.0, "cpu")

@@ -153,6 +153,37 @@ def count_flops(fn) -> tuple[int, object]:
     return counter.get_total_flops(), out
 
 
+def count_launches(fn, device: str = "cpu") -> int:
+    """What bounds a small update from below when its arithmetic is cheap: the calls it makes.
+    On a GPU, the device kernels ``fn()`` launches (torch's profiler: events on the CUDA
+    device); on a CPU, the operators it dispatches (profiled ``aten::`` ops not called from
+    inside another). Each costs a few microseconds whatever its size, so ``count x a few us``
+    is the update's launch floor."""
+    import torch
+    from torch.autograd import DeviceType
+    from torch.profiler import ProfilerActivity, profile
+
+    cuda = torch.device(device).type == "cuda"
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+    with profile(activities=activities) as prof:
+        fn()
+        if cuda:
+            torch.cuda.synchronize(device)
+    events = prof.events()
+    if cuda:
+        return sum(1 for e in events if e.device_type == DeviceType.CUDA)
+
+    def nested(e) -> bool:
+        parent = e.cpu_parent
+        while parent is not None:
+            if parent.name.startswith("aten::"):
+                return True
+            parent = parent.cpu_parent
+        return False
+
+    return sum(1 for e in events if e.name.startswith("aten::") and not nested(e))
+
+
 def arithmetic(flops_per_update: float, updates_per_s: float, peak: float) -> dict:
     """The arithmetic figures of an update rate: FLOPs per update, GFLOP/s, share of ``peak``."""
     gflops = flops_per_update * updates_per_s / 1e9
@@ -168,6 +199,18 @@ def arithmetic_line(a: dict, peak: float, unit: str = "update") -> str:
         f"       {a['flops_per_update'] / 1e6:,.1f} MFLOP per {unit} in matrix products: "
         f"{a['gflops_per_s']:.2f} GFLOP/s = {100 * a['share_of_peak']:.1f}% of the "
         f"{peak:.1f} GFLOP/s matmul peak"
+    )
+
+
+def launch_line(launches: float, update_ms: float, device: str) -> str:
+    """How close an update is to its launch floor: its launches and the time per launch (a few
+    microseconds per launch means the launches, not the arithmetic, set the update's time)."""
+    import torch
+
+    what = "device kernels" if torch.device(device).type == "cuda" else "dispatched operators"
+    return (
+        f"       {launches:,.0f} {what} per update: {1e3 * update_ms / max(launches, 1):.1f} us "
+        "per launch"
     )
 
 
@@ -202,6 +245,7 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
     # on one thread: torch's flop counter sees only the thread it was entered on
     configured, learner.twin = learner.twin, InTurn()
     flops, _ = count_flops(lambda: [learner.update(batch) for _ in range(period)])
+    launches = count_launches(lambda: [learner.update(batch) for _ in range(period)], recipe.device)
     runners = {"updates_per_s": configured}
     if configured.parallel:
         # the baseline: the critics in turn with torch's threads as they were
@@ -223,6 +267,7 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
     out["twin_threads"] = configured.parallel
     out["in_turn_threads"] = threads
     out["flops_per_update"] = flops / period
+    out["launches_per_update"] = launches / period
     return out
 
 
@@ -472,6 +517,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             "in_turn_torch_threads": measured["in_turn_threads"],
             "bare_update_ms": 1e3 / bare,
             "arithmetic": arithmetic(measured["flops_per_update"], bare, peak),
+            "launches_per_update": measured["launches_per_update"],
             "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
             "end_to_end_updates_per_s": e2e["updates_per_s"],
             "updates": e2e["updates"],
@@ -503,6 +549,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
                 f"twin threads are {row['bare_updates_per_s'] / turn:.2f}x that"
             )
         print(arithmetic_line(row["arithmetic"], peak))
+        print(launch_line(row["launches_per_update"], row["bare_update_ms"], recipe.device))
         if not row["updates"]:
             print(
                 f"{schedule:6s} no update in the {args.steps} timed env steps (the paper schedule "
@@ -515,6 +562,11 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             f"ratio to the bare update {row['ratio']:.3f} (the share of the time spent in "
             "updates; the rest is the env, collection and replay)"
         )
+        if row["ratio"] > 1.05:
+            print(
+                "       a share above 1 cannot be: the machine's load changed between the bare "
+                "and the end-to-end measurement; measure on an idle machine"
+            )
     print(device_line(recipe.device))
     return 0
 
