@@ -36,6 +36,7 @@ def make_run(
     robots: list[str] | None = None,
     random_frames: int = 600,
     deterministic: bool = True,
+    total_frames: int | None = None,
 ) -> Path:
     """A run logging ``value(step)`` as its training return and evaluating at every step."""
     robots = robots or TRAIN
@@ -46,7 +47,7 @@ def make_run(
         "algo": "td3",
         "seed": seed,
         "env": {"benchmark": "smpenv", "robots": robots, "test_robots": TEST},
-        "collector": {"total_frames": steps[-1]},
+        "collector": {"total_frames": total_frames or steps[-1]},
         "network": {"name": method},
         "td3": {"init_random_frames": 500},
         "eval": {"deterministic": deterministic},
@@ -80,7 +81,8 @@ def test_seeds_logging_at_different_steps_meet_on_the_union_of_their_steps(
     tmp_path: Path,
 ) -> None:
     make_run(tmp_path, "gcnt", 0, [500, 1000, 2000, 3000], lambda s: s / 100)
-    make_run(tmp_path, "gcnt", 1, [800, 1600, 2400], lambda s: s / 100 + 1)
+    # a seed of the same budget still running
+    make_run(tmp_path, "gcnt", 1, [800, 1600, 2400], lambda s: s / 100 + 1, total_frames=3000)
     rows = curves.learning_curves(find_runs([tmp_path]))
     # from the later first step (800) to the earlier last one (2400)
     assert [(r["env_steps"], r["logged"]) for r in rows] == [

@@ -14,6 +14,7 @@ import torch
 import yaml
 from cli_helpers import error_line
 
+from gcnt.analysis.runs import Run
 from gcnt.cli import main as gcnt
 from gcnt.recipes import load_recipe
 from gcnt.rl.factories import network_weights
@@ -102,6 +103,8 @@ def _record(source: Path) -> dict:
     path = source / "checkpoints" / "last.pt"
     return {
         "run": str(source.resolve()),
+        "task": "tiny",
+        "fingerprint": Run(source).fingerprint,
         "env_steps": RunDir(source).load_checkpoint()["env_steps"],
         "checkpoint_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
     }

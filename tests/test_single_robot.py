@@ -49,7 +49,7 @@ def test_per_robot_expands_one_run_per_robot_of_the_split(tmp_path: Path) -> Non
         "network.name=mlp",
         "seed=1",
     ]
-    assert "logger.name=quickstart-td3-mlp-hopper_4-seed1" in s.overrides
+    assert 'logger.name="quickstart-td3-mlp-hopper_4-seed1"' in s.overrides
     # the overrides train that robot alone
     r = load_recipe(QUICKSTART, s.overrides)
     assert (r.env.robots, r.env.test_robots, r.network.name, r.seed) == (["hopper_4"], [], "mlp", 1)
@@ -68,7 +68,7 @@ def test_per_robot_takes_a_list_and_labels_keep_sr_fair_and_sr_top_apart(tmp_pat
         "unimal-ft/ppo-sr-top/unimal_0001/seed0",
     ]
     assert {s.method for s in specs} == {"sr"} and {s.task for s in specs} == {"UNIMAL-FT"}
-    assert "logger.name=UNIMAL-FT-ppo-SR-top-unimal_0001-seed0" in specs[-1].overrides
+    assert 'logger.name="UNIMAL-FT-ppo-SR-top-unimal_0001-seed0"' in specs[-1].overrides
     # another world: the world and its task name, as the recipes' comments say
     mt = S.expand(
         [SR_FAIR],

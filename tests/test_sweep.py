@@ -41,7 +41,8 @@ def test_expand_gives_every_run_an_explicit_dir_and_the_sweep_group(tmp_path: Pa
     s = specs[-1]
     assert s.run_dir == str((tmp_path / "sw" / s.id).resolve())
     assert s.id.endswith("/td3-swat/seed1")
-    assert f"run_dir={s.run_dir}" in s.overrides and "logger.group=sw" in s.overrides
+    assert f"run_dir={s.run_dir}" in s.overrides
+    assert 'logger.group="sw/quickstart/td3-swat"' in s.overrides
     # a method-specific override reaches that method only, after the shared ones
     assert "network.kwargs={d_model: 9, layers: 1, ff: 16, heads: 3}" in s.overrides
     assert not any("d_model: 9" in o for o in specs[0].overrides)
@@ -96,11 +97,11 @@ def test_tiny_local_sweep_runs_resumes_evaluates_and_logs_to_wandb(tmp_path: Pat
     # the test evaluation ran through `gcnt eval` and is readable
     assert any("hopper_4" in e.robots for e in runs[0].evals())
 
-    # W&B (offline): one group for the sweep; method, task, seed and algorithm in the config;
-    # the training metrics arrived
+    # W&B (offline): one group per task and method of the sweep; method, task, seed and
+    # algorithm in the config; the training metrics arrived
     records = [json.loads(x) for x in _leet(runs[1].path).splitlines() if x.startswith("{")]
     run_rec = next(r["run"] for r in records if r["type"] == "run")
-    assert run_rec["run_group"] == "sw"
+    assert run_rec["run_group"] == "sw/quickstart/td3-gcnt"
     config = json.loads(_leet(runs[1].path, "--summary"))["config"]
     assert config["seed"] == 1 and config["network"]["name"] == "gcnt"
     assert (config.get("task") or config.get("benchmark")) and config.get("algo", "td3") == "td3"

@@ -140,9 +140,11 @@ def test_interval_resamples_seeds_not_robots(tmp_path: Path) -> None:
     assert s["mean"]["per_seed"] == {"seed0": 2.0, "seed1": 4.0}
     assert s["iqm"]["per_seed"] == {"seed0": 2.0, "seed1": 4.0} and s["seeds"] == 2
     md = variants.to_markdown(summary, ("mean", "iqm"))
-    assert "stratified percentile bootstrap over seeds" in md
+    # two seeds: the interval is their range and is called so, never a 95% CI
+    assert "range of the seeds' aggregates over the set's robots (n = 2 seeds;" in md
+    assert "CI" not in md.replace("no bootstrap CI", "")
     assert "Evaluation: deterministic actions, 100 episodes per robot." in md
-    assert "| swat | 2 | 2 | 3.0 [2.0, 4.0] | 3.0 [2.0, 4.0] |" in md
+    assert "| SWAT | 2 | 2 | 3.0 [2.0, 4.0] | 3.0 [2.0, 4.0] |" in md
 
 
 def test_variants_command_states_interval_and_protocol(tmp_path: Path, capsys) -> None:

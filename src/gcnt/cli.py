@@ -19,11 +19,16 @@ import logging
 import os
 import sys
 
+from gcnt import provenance
 from gcnt.suggest import did_you_mean
 
 #: sub-command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "robots": ("gcnt.commands.robots", "list, check and generate robots and benchmarks"),
+    "import-unimal": (
+        "gcnt.commands.import_unimal",
+        "register MetaMorph's published UNIMAL-100 robots (the paper's) as a benchmark",
+    ),
     "train": ("gcnt.commands.train", "train a policy from a recipe, or resume a run"),
     "eval": ("gcnt.commands.eval", "evaluate a run's policy per robot (zero-shot included)"),
     "params": ("gcnt.commands.params", "parameter counts of every method (paper tables 7-8)"),
@@ -43,7 +48,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "curves": ("gcnt.commands.curves", "learning curves over seeds (paper figures 6, 7, 9)"),
     "zeroshot": ("gcnt.commands.zeroshot", "zero-shot table over seeds (paper table 1)"),
-    "variants": ("gcnt.commands.variants", "returns on variant sets, bootstrap CIs (figure 8)"),
+    "variants": ("gcnt.commands.variants", "returns on variant sets over seeds (figure 8)"),
     "embed": ("gcnt.commands.embed", "t-SNE of per-limb structural vectors (figure 10)"),
     "strobe": (
         "gcnt.commands.strobe",
@@ -149,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     args = build_parser(only=command).parse_args(argv)
+    provenance.set_command(["gcnt", *argv])  # the command runs and sweeps record
     _configure_logging(args.verbose)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)

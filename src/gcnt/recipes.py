@@ -82,6 +82,8 @@ class LoggerConfig:
     project: str | None = None
     group: str | None = None
     name: str | None = None
+    #: W&B tags besides ``seed:N``, which every run gets (a sweep adds ``sweep:NAME``)
+    tags: list[str] = field(default_factory=list)
     #: environment steps between log lines
     log_interval: int = 5_000
     #: terminal progress bar

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gcnt.analysis.plotting import FigureStyle
 from gcnt.analysis.runs import AnalysisError, method_key, protocols_text
 
 #: margin above and below the drawn values, as a fraction of their span
@@ -45,12 +46,13 @@ def bar_limits(summary: dict[str, Any], statistics: Sequence[str]) -> tuple[floa
 
 
 def caption(summary: dict[str, Any], interval: str | None = None) -> str:
-    """What the error bars are (``interval``, else the summary's) and, where the summary says
-    it, the evaluation protocol the numbers come from."""
+    """What the error bars are (``interval``, else the summary's, which name their n) and, where
+    the summary says it, the evaluation protocol the numbers come from."""
+    from gcnt.analysis.variants import intervals_text
+
     items = [item for entry in summary.values() for item in entry.values()]
     if interval is None:
-        texts = list(dict.fromkeys(str(i["interval"]) for i in items if i.get("interval")))
-        interval = "; ".join(texts) or "the summary's low-high intervals"
+        interval = intervals_text(items) or "the summary's low-high intervals"
     text = f"Zero-shot return per method. Error bars: {interval}."
     protocols = [str(i["protocol"]) for i in items if i.get("protocol")]
     if protocols:
@@ -62,9 +64,21 @@ def bar_figure(
     summary: dict[str, Any],
     statistics: Sequence[str] = ("mean",),
     interval: str | None = None,
+    style: FigureStyle | None = None,
 ):
-    """The figure: a panel per set, sharing the methods' places and the y range."""
+    """The figure: a panel per set, sharing the methods' places and the y range; methods and
+    sets by their display names (``style``'s over the defaults), its size and fonts as
+    ``style`` says, and its title the caption (or ``style``'s title)."""
+    style = style or FigureStyle()
+    with style.context():
+        return _bar_figure(summary, statistics, interval, style)
+
+
+def _bar_figure(
+    summary: dict[str, Any], statistics: Sequence[str], interval: str | None, style: FigureStyle
+):
     from gcnt.analysis.plotting import pyplot
+    from gcnt.analysis.variants import set_display
 
     plt = pyplot()
     import numpy as np
@@ -83,7 +97,11 @@ def bar_figure(
     width = 0.8 / len(stats)
     panel_width = 1.2 + 0.9 * len(methods) * len(stats) ** 0.5
     fig, axes = plt.subplots(
-        1, len(sets), figsize=(panel_width * len(sets), 3.4), sharey=True, squeeze=False
+        1,
+        len(sets),
+        figsize=style.size((panel_width * len(sets), 3.4)),
+        sharey=True,
+        squeeze=False,
     )
     x = np.arange(len(methods), dtype=np.float64)
     for ax, name in zip(axes[0], sets, strict=True):
@@ -104,9 +122,11 @@ def bar_figure(
         items = summary[name].values()
         robots = max(int(it.get("robots") or 0) for it in items)
         seeds = max(int(it.get("seeds") or 0) for it in items)
-        ax.set_title(f"{name} ({robots} robots, {seeds} seeds)", fontsize="medium")
+        title = f"{set_display(summary, name, style)} ({robots} robots, {seeds} seeds)"
+        ax.set_title(title, fontsize="medium")
         tilt = len(methods) > 4
-        ax.set_xticks(x, methods, rotation=30 if tilt else 0, ha="right" if tilt else "center")
+        shown = [style.name(m) for m in methods]
+        ax.set_xticks(x, shown, rotation=30 if tilt else 0, ha="right" if tilt else "center")
         ax.set_xlim(-0.6, len(methods) - 0.4)
         ax.set_xlabel("method")
         ax.axhline(0.0, color="0.3", linewidth=0.6)
@@ -125,8 +145,10 @@ def bar_figure(
         axes[0, -1].legend(
             handles=handles, fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0)
         )
-    chars = int(12 * panel_width * len(sets))  # about 12 characters an inch at this size
-    fig.suptitle(textwrap.fill(caption(summary, interval), chars), fontsize="medium")
+    # about 12 characters an inch at 10 pt
+    chars = int(12 * fig.get_figwidth() * 10 / plt.rcParams["font.size"])
+    text = textwrap.fill(caption(summary, interval), chars)  # kept under a --title
+    fig.suptitle(f"{style.title}\n{text}" if style.title else text, fontsize="medium")
     fig.tight_layout()
     return fig
 
@@ -136,12 +158,10 @@ def plot_bars(
     path: Path,
     statistics: Sequence[str] = ("mean",),
     interval: str | None = None,
+    style: FigureStyle | None = None,
 ) -> Path:
-    """:func:`bar_figure` written to ``path`` (PNG, or PDF by the suffix)."""
-    import matplotlib.pyplot as plt
-
-    fig = bar_figure(summary, statistics, interval)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    """:func:`bar_figure` written as ``style`` says (default: to ``path``, in the format of its
+    suffix); returns the first file written."""
+    style = style or FigureStyle()
+    fig = bar_figure(summary, statistics, interval, style)
+    return style.save(fig, path)[0]

@@ -10,8 +10,10 @@ onto the union of their logged steps within the range every seed covers (from th
 log step to the earliest last one), and ``logged`` counts the seeds that logged at each row.
 Smoothing (a trailing moving average over log rows, per seed) happens only when asked for.
 
-Single-robot baselines (SR-fair, SR-top: ``gcnt sweep --per-robot``) are one run per robot and
-seed. Within a (task, method) group, the runs of one seed that each train one robot are that
+A curve is one experiment's seeds (:func:`gcnt.analysis.groups.comparable_groups`: runs of one
+task and method whose recipes differ in more than the seed are separate curves, named by what
+tells them apart). Single-robot baselines (SR-fair, SR-top: ``gcnt sweep --per-robot``) are one
+run per robot and seed. Within a group, the runs of one seed that each train one robot are that
 seed's per-robot runs: their curves are averaged first (each interpolated onto the steps all of
 them cover; the mean over robots), and the seeds are then aggregated as above. ``seeds`` counts
 seeds, ``robots`` the robots averaged per seed (1 for ordinary runs).
@@ -27,11 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
+from gcnt.analysis.groups import comparable_groups
+from gcnt.analysis.plotting import FigureStyle
 from gcnt.analysis.runs import (
     AnalysisError,
     Run,
     method_key,
-    method_labels,
     protocols_text,
     score,
 )
@@ -162,8 +165,9 @@ def logged_steps(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 
 
 def seed_groups(members: Sequence[Run]) -> list[list[Run]]:
-    """The runs of one (task, method) group, one list per seed: the runs of a seed that each
-    train one robot together (per-robot runs), every other run alone; in seed order."""
+    """The runs of one group (the seeds of one experiment), one list per seed: the runs of a
+    seed that each train one robot together (per-robot runs), every other run alone; in seed
+    order."""
     units: list[tuple[int, list[Run]]] = []
     per_robot: dict[int, list[Run]] = {}
     for r in members:
@@ -185,16 +189,11 @@ def learning_curves(
 ) -> list[dict]:
     """One row per (task, method, step): mean, stderr, the number of seeds, the number of robots
     averaged per seed (per-robot runs; 1 otherwise) and the number of seeds logged there."""
-    labels = method_labels(runs)
-    groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
-    for r in runs:
-        groups[(r.task, labels[r.path])].append(r)
     rows = []
-    for (task, method), members in sorted(
-        groups.items(), key=lambda kv: (kv[0][0], method_key(kv[0][1]))
-    ):
+    for group in comparable_groups(runs):  # the seeds of one experiment each
+        task, method = group.task, group.label
         curves, robots = [], []
-        for unit in seed_groups(members):
+        for unit in seed_groups(group.runs):
             per_run = [run_curve(r, metric, smooth) for r in unit]
             per_run = [c for c in per_run if len(c[0])]
             if per_run:
@@ -276,53 +275,94 @@ def plot_curves(
     *,
     ylabel: str | None = None,
     random_until: dict[str, list[int]] | None = None,
+    style: FigureStyle | None = None,
 ) -> Path:
-    """One panel per task, one line per method, a band of ± one standard error; a marker at each
-    row (filled where every seed logged, hollow where some are interpolated), and a dotted
-    vertical line where the random exploration phase ends (``random_until``: task -> steps)."""
-    from gcnt.analysis.plotting import pyplot
+    """:func:`curves_figure` written as ``style`` says (default: to ``path``, in the format of
+    its suffix); returns the first file written."""
+    style = style or FigureStyle()
+    fig = curves_figure(rows, metric, ylabel=ylabel, random_until=random_until, style=style)
+    return style.save(fig, path)[0]
+
+
+def curves_figure(
+    rows: Sequence[dict],
+    metric: str = "train_return/mean",
+    *,
+    ylabel: str | None = None,
+    random_until: dict[str, list[int]] | None = None,
+    style: FigureStyle | None = None,
+):
+    """One panel per task, one line per method, a band of ± one standard error over seeds (an
+    error bar at a point with no finite neighbour: a single evaluation, or one between gaps); a
+    marker at each row (filled where every seed logged, hollow where some are interpolated), and
+    a dotted vertical line where the random exploration phase ends (``random_until``: task ->
+    steps). The legend names the interval and each method's number of seeds; each panel's y
+    range holds every band. Tasks and methods by their display names; size, fonts and title as
+    ``style`` says."""
+    from gcnt.analysis.intervals import stderr_text
+    from gcnt.analysis.plotting import padded_limits, pyplot
 
     plt = pyplot()
+    style = style or FigureStyle()
 
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     methods = sorted({r["method"] for r in rows}, key=method_key)
     colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
     cols = min(4, len(tasks))
     nrows = -(-len(tasks) // cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(4.6 * cols, 3.6 * nrows), squeeze=False)
-    for ax, task in zip(axes.flat, tasks, strict=False):
-        for m in methods:
-            sel = [r for r in rows if r["task"] == task and r["method"] == m]
-            if not sel:
-                continue
-            x = np.array([r["env_steps"] for r in sel])
-            y = np.array([r["mean"] for r in sel])
-            e = np.nan_to_num(np.array([r["stderr"] for r in sel]))
-            n, k = sel[0]["seeds"], sel[0].get("robots", 1)
-            full = np.array([r.get("logged", n) >= n for r in sel])
-            label = f"{m} ({n}{f' x {k} robots' if k > 1 else ''})"
-            c = colours[m]
-            ax.plot(x, y, color=c, label=label)
-            ax.fill_between(x, y - e, y + e, color=c, alpha=0.2, linewidth=0)
-            ax.plot(x[full], y[full], "o", color=c, markersize=3.5)
-            ax.plot(x[~full], y[~full], "o", mfc="none", color=c, markersize=3.5)
-        for i, steps in enumerate((random_until or {}).get(task, [])):
-            ax.axvline(
-                steps,
-                color="0.4",
-                linestyle=":",
-                linewidth=1,
-                label="end of random actions" if i == 0 else None,
-            )
-        ax.set_title(task)
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel(ylabel or metric, fontsize="small")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize="small", title="method (seeds)", title_fontsize="small")
-    for ax in axes.flat[len(tasks) :]:
-        ax.set_visible(False)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    with style.context():
+        fig, axes = plt.subplots(
+            nrows, cols, figsize=style.size((4.6 * cols, 3.6 * nrows)), squeeze=False
+        )
+        for ax, task in zip(axes.flat, tasks, strict=False):
+            drawn, seeds = [], []
+            for m in methods:
+                sel = [r for r in rows if r["task"] == task and r["method"] == m]
+                if not sel:
+                    continue
+                x = np.array([r["env_steps"] for r in sel], dtype=np.float64)
+                y = np.array([r["mean"] for r in sel], dtype=np.float64)
+                e = np.nan_to_num(np.array([r["stderr"] for r in sel], dtype=np.float64))
+                n, k = sel[0]["seeds"], sel[0].get("robots", 1)
+                seeds.append(n)
+                full = np.array([r.get("logged", n) >= n for r in sel])
+                per = f" × {k} robots" if k > 1 else ""
+                label = f"{style.name(m)} (n = {n}{per})"
+                c = colours[m]
+                ax.plot(x, y, color=c, label=label)
+                ax.fill_between(x, y - e, y + e, color=c, alpha=0.2, linewidth=0)
+                alone = _isolated(y)
+                if alone.any():  # a band needs two points: these get an error bar
+                    ax.errorbar(x[alone], y[alone], yerr=e[alone], fmt="none", ecolor=c, capsize=3)
+                ax.plot(x[full], y[full], "o", color=c, markersize=3.5)
+                ax.plot(x[~full], y[~full], "o", mfc="none", color=c, markersize=3.5)
+                drawn += [*(y - e), *(y + e)]
+            for i, steps in enumerate((random_until or {}).get(task, [])):
+                ax.axvline(
+                    steps,
+                    color="0.4",
+                    linestyle=":",
+                    linewidth=1,
+                    label="end of random actions" if i == 0 else None,
+                )
+            limits = padded_limits(drawn)
+            if limits is not None:
+                ax.set_ylim(*limits)
+            ax.set_title(style.name(task))
+            ax.set_xlabel("environment steps")
+            ax.set_ylabel(ylabel or metric, fontsize="small")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize="small", title=stderr_text(seeds), title_fontsize="small")
+        for ax in axes.flat[len(tasks) :]:
+            ax.set_visible(False)
+        style.suptitle(fig)
+        fig.tight_layout()
+    return fig
+
+
+def _isolated(y: np.ndarray) -> np.ndarray:
+    """Finite values whose neighbours are missing or not finite (a band cannot show them)."""
+    ok = np.isfinite(y)
+    before = np.concatenate([[False], ok[:-1]])
+    after = np.concatenate([ok[1:], [False]])
+    return ok & ~before & ~after

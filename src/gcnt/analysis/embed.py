@@ -11,13 +11,14 @@ graph only, never on the observation. Works from a run's checkpoint or an untrai
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gcnt.analysis.plotting import FigureStyle
 from gcnt.analysis.runs import AnalysisError, Run
 
 #: methods whose chains carry a structural vector per limb
@@ -128,8 +129,13 @@ def structural_vectors(
     return Embedding(title or method, np.stack(rows), limb_types, names, families)
 
 
-def run_embedding(run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS) -> Embedding:
-    """Structural vectors of a run's trained actor (its latest checkpoint)."""
+def run_embedding(
+    run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS, names: Mapping[str, str] | None = None
+) -> Embedding:
+    """Structural vectors of a run's trained actor (its latest checkpoint), titled with the
+    display names of its method and task (``names`` over the defaults)."""
+    from gcnt.analysis.names import display_name
+
     net = run.recipe.get("network") or {}
     actor_state = run.policy_state()["actor"]
     return structural_vectors(
@@ -140,7 +146,8 @@ def run_embedding(run: Run, robot_specs: Sequence[str] = DEFAULT_ROBOTS) -> Embe
         preset=net.get("preset"),
         kwargs=dict(net.get("kwargs") or {}),
         role="ppo_actor" if run.algo == "ppo" else "td3_actor",
-        title=f"{run.method} ({run.task}, seed {run.seed}, {run.last_env_steps()} steps)",
+        title=f"{display_name(run.method, names)} ({display_name(run.task, names)}, "
+        f"seed {run.seed}, {run.last_env_steps()} steps)",
     )
 
 
@@ -184,9 +191,22 @@ def _type_colours(types: Sequence[str]) -> dict[str, Any]:
     return {t: cmap(i % 10) for t, i in zip(known + other, slots, strict=True)}
 
 
-def embedding_figure(embeddings: Sequence[Embedding], coords: Sequence[np.ndarray]):
+def embedding_figure(
+    embeddings: Sequence[Embedding],
+    coords: Sequence[np.ndarray],
+    style: FigureStyle | None = None,
+):
     """t-SNE panels side by side (``coords[i]``: [N, 2] points of ``embeddings[i]``): marker =
-    robot family, colour = limb type, with one legend for each below the panels."""
+    robot family, colour = limb type, with one legend for each below the panels; size, fonts
+    and title as ``style`` says."""
+    style = style or FigureStyle()
+    with style.context():
+        return _embedding_figure(embeddings, coords, style)
+
+
+def _embedding_figure(
+    embeddings: Sequence[Embedding], coords: Sequence[np.ndarray], style: FigureStyle
+):
     from gcnt.analysis.plotting import pyplot
 
     plt = pyplot()
@@ -201,7 +221,7 @@ def embedding_figure(embeddings: Sequence[Embedding], coords: Sequence[np.ndarra
     marker = _family_markers(families)
     colour = _type_colours(sorted({t for e in embeddings for t in e.limb_types}))
     n = len(embeddings)
-    fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.6), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=style.size((3.6 * n, 3.6)), squeeze=False)
     for ax, e, xy in zip(axes[0], embeddings, coords, strict=True):
         xy = np.asarray(xy)
         if xy.shape != (len(e.vectors), 2):
@@ -225,6 +245,7 @@ def embedding_figure(embeddings: Sequence[Embedding], coords: Sequence[np.ndarra
         ax.set_xticks([])
         ax.set_yticks([])
         ax.set_aspect("equal", adjustable="datalim")
+    style.suptitle(fig)
     fig.tight_layout()
     fam_handles = [
         Line2D([], [], ls="", marker=marker[f], mfc="0.75", mec="0.15", label=f) for f in families
@@ -253,14 +274,11 @@ def embedding_figure(embeddings: Sequence[Embedding], coords: Sequence[np.ndarra
     return fig
 
 
-def plot_embeddings(embeddings: Sequence[Embedding], path: Path, seed: int = 0) -> Path:
-    """:func:`embedding_figure` of the t-SNE of each embedding, written to ``path``."""
-    from gcnt.analysis.plotting import pyplot
-
-    plt = pyplot()
-
-    fig = embedding_figure(embeddings, [tsne(e.vectors, seed) for e in embeddings])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return path
+def plot_embeddings(
+    embeddings: Sequence[Embedding], path: Path, seed: int = 0, style: FigureStyle | None = None
+) -> Path:
+    """:func:`embedding_figure` of the t-SNE of each embedding, written as ``style`` says
+    (default: to ``path``); returns the first file written."""
+    style = style or FigureStyle()
+    fig = embedding_figure(embeddings, [tsne(e.vectors, seed) for e in embeddings], style)
+    return style.save(fig, path)[0]

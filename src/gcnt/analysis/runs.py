@@ -11,6 +11,7 @@ A run directory, as ``gcnt train`` writes it::
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -43,6 +44,35 @@ METHOD_ORDER = (
 )
 #: single-robot references, listed after every other method (paper figure 7's SR lines)
 REFERENCE_ORDER = ("sr", "SR-fair", "SR-top")
+
+#: Recipe keys that do not change the experiment a run is one seed of, so that runs differing
+#: only in them are seeds of one experiment (:attr:`Run.experiment`; a section's name stands for
+#: every key in it): the seed itself; where the run is written and how it logs; the device; how
+#: often it checkpoints and evaluates during training, and videos; the physics threads; and the
+#: speed switches that compute the same updates (compiled, CUDA-graphed, threaded, the replay's
+#: device; not ``compile.amp``, whose bfloat16 updates differ). ``resolved`` holds what the run
+#: derived from the other keys, and where a fine-tuned run started (its ``init_from`` record,
+#: which enters as the source run's task and fingerprint instead).
+NOT_THE_EXPERIMENT = (
+    "seed",
+    "run_dir",
+    "logger",
+    "device",
+    "checkpoint_interval",
+    "eval.interval",
+    "eval.video",
+    "env.num_threads",
+    "compile.compile",
+    "compile.mode",
+    "compile.cudagraphs",
+    "compile.replay_on_device",
+    "compile.policy_compile",
+    "compile.policy_cudagraphs",
+    "compile.warmup",
+    "compile.torch_threads",
+    "compile.twin_threads",
+    "resolved",
+)
 
 
 class AnalysisError(ValueError):
@@ -151,6 +181,25 @@ def _get(d: Any, *path: str, default: Any = None) -> Any:
     return d
 
 
+def _flatten(d: dict[str, Any], prefix: str = "") -> Iterable[tuple[str, Any]]:
+    """``(dotted key, value)`` of every value in nested mappings (an empty mapping has none),
+    a whole number written as a float read as the integer (``2e4`` is ``20000``)."""
+    for key, value in d.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict):
+            yield from _flatten(value, dotted + ".")
+        else:
+            yield dotted, _plain_number(value)
+
+
+def _plain_number(value: Any) -> Any:
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, list):
+        return [_plain_number(v) for v in value]
+    return value
+
+
 class Run:
     """A run directory, read lazily."""
 
@@ -248,6 +297,50 @@ class Run:
             return spec if robot_catalogue(spec) is not None else None
         except Exception:  # noqa: BLE001 - an unreadable catalogue: not known as one robot
             return None
+
+    # --- which experiment the run is a seed of
+    @cached_property
+    def experiment(self) -> dict[str, Any]:
+        """The resolved recipe as dotted keys (``collector.total_frames``: value), without the
+        keys that do not change the experiment (:data:`NOT_THE_EXPERIMENT`) and those set to
+        null (a default, as in a recipe written before the key existed): runs with equal ones
+        are seeds of one experiment. A run that trains one robot leaves out ``env.robots``
+        (the per-robot runs of ``gcnt sweep --per-robot`` are one experiment); a fine-tuned run
+        whose record names its source run's fingerprint holds ``init_from.task`` and
+        ``init_from.fingerprint`` instead of the source's path (fine-tunes of different seeds
+        of one experiment are seeds of one fine-tune)."""
+        flat = {
+            key: value
+            for key, value in _flatten(self.recipe)
+            if value is not None  # null is the default, as a key an older recipe lacks
+            and not any(key == k or key.startswith(k + ".") for k in NOT_THE_EXPERIMENT)
+        }
+        if self.single_robot is not None:
+            flat.pop("env.robots", None)
+        record = _get(self.recipe, "resolved", "init_from")
+        if isinstance(record, dict) and record.get("fingerprint"):
+            flat.pop("init_from", None)
+            flat["init_from.task"] = str(record.get("task"))
+            flat["init_from.fingerprint"] = str(record["fingerprint"])
+        return flat
+
+    @cached_property
+    def fingerprint(self) -> str:
+        """A short hash of :attr:`experiment`: equal for the seeds of one experiment."""
+        text = json.dumps(self.experiment, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+    @property
+    def fine_tune_of(self) -> str | None:
+        """Where a fine-tuned run started (``init_from``): ``<task> run <path>`` from the
+        record of its source run, or the path alone in a recipe without that record; None for
+        a run trained from scratch."""
+        record = _get(self.recipe, "resolved", "init_from")
+        if isinstance(record, dict) and record.get("run"):
+            task = record.get("task")
+            return f"{task} run {record['run']}" if task else str(record["run"])
+        source = self.recipe.get("init_from")
+        return str(source) if source else None
 
     # --- metrics
     def metrics(self) -> list[dict[str, Any]]:
@@ -388,9 +481,12 @@ def first_seed_per_method(runs: Sequence[Run]) -> list[Run]:
 
 
 def method_key(method: str) -> tuple[int, str]:
-    if method in REFERENCE_ORDER:
-        return (len(METHOD_ORDER) + 1 + REFERENCE_ORDER.index(method), method)
-    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), method)
+    """The place of ``method`` in :data:`METHOD_ORDER` (a method's experiments told apart,
+    ``gcnt [collector.total_frames=24000]``, at the method's place)."""
+    base = method.split(" [", 1)[0]
+    if base in REFERENCE_ORDER:
+        return (len(METHOD_ORDER) + 1 + REFERENCE_ORDER.index(base), method)
+    return (METHOD_ORDER.index(base) if base in METHOD_ORDER else len(METHOD_ORDER), method)
 
 
 def method_labels(runs: Sequence[Run]) -> dict[Path, str]:

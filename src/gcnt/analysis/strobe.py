@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gcnt.analysis.plotting import FigureStyle
 from gcnt.analysis.runs import AnalysisError, Run
 
 DEFAULT_ROBOT = "humanoid_2d_9_full"
@@ -246,19 +247,31 @@ def strobe_image(
         renderer.close()
 
 
-def strobe_figure(images: Sequence[np.ndarray], labels: Sequence[str], title: str | None = None):
-    """One figure with a row per image, each labelled on its left."""
+def strobe_figure(
+    images: Sequence[np.ndarray],
+    labels: Sequence[str],
+    title: str | None = None,
+    style: FigureStyle | None = None,
+):
+    """One figure with a row per image, each labelled on its left; size, fonts and title (over
+    ``title``) as ``style`` says."""
+    if len(images) != len(labels) or not images:
+        raise ValueError(f"{len(images)} images for {len(labels)} row labels")
+    style = style or FigureStyle()
+    with style.context():
+        return _strobe_figure(images, labels, title, style)
+
+
+def _strobe_figure(
+    images: Sequence[np.ndarray], labels: Sequence[str], title: str | None, style: FigureStyle
+):
     from gcnt.analysis.plotting import pyplot
 
     plt = pyplot()
-
-    if len(images) != len(labels) or not images:
-        raise ValueError(f"{len(images)} images for {len(labels)} row labels")
     h, w = images[0].shape[:2]
     width = 9.0
-    fig, axes = plt.subplots(
-        len(images), 1, figsize=(width + 1.4, width * h / w * len(images) + 0.5), squeeze=False
-    )
+    size = style.size((width + 1.4, width * h / w * len(images) + 0.5))
+    fig, axes = plt.subplots(len(images), 1, figsize=size, squeeze=False)
     for ax, image, label in zip(axes[:, 0], images, labels, strict=True):
         ax.imshow(image)
         ax.set_xticks([])
@@ -266,8 +279,7 @@ def strobe_figure(images: Sequence[np.ndarray], labels: Sequence[str], title: st
         for spine in ax.spines.values():
             spine.set_visible(False)
         ax.set_ylabel(label, rotation=0, ha="right", va="center", fontsize="medium")
-    if title:
-        fig.suptitle(title, fontsize="medium")
+    style.suptitle(fig, title, fontsize="medium")
     fig.tight_layout(h_pad=0.3)
     return fig
 
@@ -282,12 +294,14 @@ def strobe_runs(
     seed: int = 0,
     min_gap: float = MIN_GAP,
     name: str | None = None,
+    style: FigureStyle | None = None,
 ) -> Path:
-    """One picture of ``runs`` (a row each) on ``robot``, as ``out/<name>.png`` (default
-    ``strobe-<robot>-<task>[-<task>...]``)."""
-    import matplotlib.pyplot as plt
-
+    """One picture of ``runs`` (a row each, labelled with its method's display name) on
+    ``robot``, as ``out/<name>.png`` (default ``strobe-<robot>-<task>[-<task>...]``; the
+    formats, size and fonts as ``style`` says); returns the first file written."""
     from gcnt.analysis.runs import method_labels
+
+    style = style or FigureStyle()
 
     if not runs:
         raise AnalysisError("no run to draw")
@@ -296,7 +310,9 @@ def strobe_runs(
             raise AnalysisError(f"{r.path}: no checkpoint to take the policy from")
     labels = method_labels(runs)
     several_tasks = len({r.task for r in runs}) > 1
-    shown = [f"{labels[r.path]} ({r.task})" if several_tasks else labels[r.path] for r in runs]
+    shown = [style.name(labels[r.path]) for r in runs]
+    if several_tasks:
+        shown = [f"{text} ({style.name(r.task)})" for text, r in zip(shown, runs, strict=True)]
     rows = []
     for r in runs:
         env, model, data, poses, ret = rollout_poses(r, robot, steps, seed)
@@ -321,9 +337,5 @@ def strobe_runs(
     robot_name = Path(robot).stem  # a robot given by its file: the file's name
     stem = name or f"strobe-{robot_name}-{tasks}".replace("+", "p")
     title = f"{robot_name}: deterministic policy, poses along the path"
-    fig = strobe_figure(images, row_labels, title=title)
-    path = out / f"{stem}.png"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    fig = strobe_figure(images, row_labels, title=title, style=style)
+    return style.save(fig, out / f"{stem}.png")[0]

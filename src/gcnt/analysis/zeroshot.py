@@ -5,7 +5,9 @@ robot gives that seed's mean return; between equals, one made with the run's rec
 (``eval.deterministic``), then the one with the most episodes, then a test evaluation (``gcnt eval
 --robots test``). A cell is the mean ± standard error of those per-seed means over seeds, and
 says which protocol (deterministic or sampled actions, episodes per robot) they come from. The
-best method of each row is marked.
+best mean of a row is in bold where its mean ± 1 s.e. lies above the runner-up's (not where
+they overlap). Written as Markdown and LaTeX (methods and tasks by their display names) and JSON
+(by their ids). A column is one experiment's seeds (:func:`gcnt.analysis.groups.comparable_groups`).
 """
 
 from __future__ import annotations
@@ -16,13 +18,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gcnt.analysis.groups import RunGroup, comparable_groups
+from gcnt.analysis.intervals import separated_best, stderr_text
+from gcnt.analysis.plotting import FigureStyle
 from gcnt.analysis.runs import (
     AnalysisError,
     EvalRecord,
     Run,
     mean_stderr,
-    method_key,
-    method_labels,
     protocols_text,
     score,
 )
@@ -85,24 +88,22 @@ def zero_shot_table(
 ) -> dict[str, Any]:
     """``{task: {"robots": [...], "methods": [...], "cells": {robot: {method: cell}},
     "best": {robot: method}}}``; a cell holds mean, stderr, seeds and the per-seed means."""
-    labels = method_labels(runs)
-    by_task: dict[str, list[Run]] = defaultdict(list)
-    for r in runs:
-        by_task[r.task].append(r)
+    by_task: dict[str, list[RunGroup]] = defaultdict(list)
+    for group in comparable_groups(runs):  # the seeds of one experiment each: a column
+        by_task[group.task].append(group)
     out: dict[str, Any] = {}
     evals = {r.path: r.evals() for r in runs}  # each run's eval files, read once
-    for task, members in by_task.items():
+    for task, groups in by_task.items():
+        members = [r for g in groups for r in g.runs]
         names = list(robots) if robots else test_robots(members)
-        methods = sorted({labels[r.path] for r in members}, key=method_key)
+        methods = [g.label for g in groups]
         cells: dict[str, dict[str, Any]] = {}
         for robot in names:
             row = {}
-            for m in methods:
+            for m, group in zip(methods, groups, strict=True):
                 per_seed = {}
                 sources, protocols = [], []
-                for r in members:
-                    if labels[r.path] != m:
-                        continue
+                for r in group.runs:
                     got = seed_score(evals[r.path], robot, label, r.eval_deterministic, r)
                     if got is not None:
                         per_seed[str(r.seed)] = got[0]
@@ -141,38 +142,101 @@ def zero_shot_table(
     return out
 
 
-def _fmt(cell: dict[str, Any] | None, bold: bool) -> str:
+def _fmt(cell: dict[str, Any] | None, bold: bool, pm: str = "±", mark: str = "**{}**") -> str:
     if cell is None:
         return "–"
     se = cell["stderr"]
-    text = f"{cell['mean']:.1f} ± {se:.1f}" if se == se else f"{cell['mean']:.1f}"
-    return f"**{text}**" if bold else text
+    text = f"{cell['mean']:.1f} {pm} {se:.1f}" if se == se else f"{cell['mean']:.1f}"
+    return mark.format(text) if bold else text
 
 
-def to_markdown(table: dict[str, Any]) -> str:
-    """One Markdown table per task: a row per test robot, a column per method, best in bold."""
+def bold_method(row: dict[str, dict[str, Any]]) -> str | None:
+    """The method of a row shown in bold: the best mean, when its mean ± 1 s.e. lies wholly
+    above the runner-up's (:func:`gcnt.analysis.intervals.separated_best`); else none."""
+    return separated_best(
+        {m: (c["mean"], c["mean"] - c["stderr"], c["mean"] + c["stderr"]) for m, c in row.items()}
+    )
+
+
+def _caption(t: dict[str, Any]) -> tuple[str, str]:
+    """(what the cells are and what bold means, the evaluation protocol) of a task's table."""
+    seeds = [c["seeds"] for row in t["cells"].values() for c in row.values()]
+    return (
+        f"Cells: {stderr_text(seeds)}. Bold: a row's best mean whose interval lies above the "
+        "runner-up's (none where they overlap).",
+        f"Evaluation: {t.get('protocol', 'not recorded')}.",
+    )
+
+
+def to_markdown(table: dict[str, Any], style: FigureStyle | None = None) -> str:
+    """One Markdown table per task: a row per test robot, a column per method (display names,
+    ``style``'s over the defaults), the interval and its n stated, separated bests in bold."""
+    style = style or FigureStyle()
     parts = []
     for task, t in table.items():
         methods = t["methods"]
-        seeds = sorted({c["seeds"] for row in t["cells"].values() for c in row.values()})
-        parts.append(f"### {task} (mean ± s.e. over {'/'.join(map(str, seeds))} seeds)\n")
-        parts.append(f"Evaluation: {t.get('protocol', 'not recorded')}.\n")
-        parts.append("| robot | " + " | ".join(methods) + " |")
+        cells_text, protocol = _caption(t)
+        parts += [f"### {style.name(task)}\n", f"{cells_text}\n", f"{protocol}\n"]
+        parts.append("| robot | " + " | ".join(style.name(m) for m in methods) + " |")
         parts.append("|---|" + "---:|" * len(methods))
         for robot in t["robots"]:
             row = t["cells"][robot]
-            cells = [_fmt(row.get(m), t["best"][robot] == m) for m in methods]
+            bold = bold_method(row)
+            cells = [_fmt(row.get(m), bold == m) for m in methods]
             parts.append(f"| {robot} | " + " | ".join(cells) + " |")
         parts.append("")
     return "\n".join(parts)
 
 
-def write(table: dict[str, Any], out: Path, stem: str = "zeroshot") -> tuple[Path, Path]:
-    """``<stem>.md`` and ``<stem>.json`` (strict JSON: a missing standard error is ``null``)."""
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+        "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+        "±": r"$\pm$", "–": "--", "…": r"\dots{}"}  # fmt: skip
+
+
+def _tex(text: str) -> str:
+    return "".join(_TEX.get(c, c) for c in str(text))
+
+
+def to_latex(table: dict[str, Any], style: FigureStyle | None = None) -> str:
+    """One LaTeX table (``booktabs``) per task, as :func:`to_markdown`: the caption names the
+    interval, its n, what bold means and the evaluation protocol."""
+    style = style or FigureStyle()
+    parts = ["% needs \\usepackage{booktabs}"]
+    for task, t in table.items():
+        methods = t["methods"]
+        cells_text, protocol = _caption(t)
+        caption = f"Zero-shot return on the {style.name(task)} test robots. {cells_text} {protocol}"
+        parts += [
+            r"\begin{table}[t]",
+            r"\centering",
+            rf"\caption{{{_tex(caption)}}}",
+            rf"\begin{{tabular}}{{l{'r' * len(methods)}}}",
+            r"\toprule",
+            " & ".join(["Robot", *(_tex(style.name(m)) for m in methods)]) + r" \\",
+            r"\midrule",
+        ]
+        for robot in t["robots"]:
+            row = t["cells"][robot]
+            bold = bold_method(row)
+            cells = [
+                _fmt(row.get(m), bold == m, pm=r"$\pm$", mark=r"\textbf{{{}}}").replace("–", "--")
+                for m in methods
+            ]
+            parts.append(" & ".join([_tex(robot), *cells]) + r" \\")
+        parts += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
+    return "\n".join(parts)
+
+
+def write(
+    table: dict[str, Any], out: Path, stem: str = "zeroshot", style: FigureStyle | None = None
+) -> tuple[Path, Path, Path]:
+    """``<stem>.md``, ``<stem>.tex`` and ``<stem>.json`` (strict JSON: a missing standard error
+    is ``null``; methods by their ids)."""
     from gcnt.rl.run_dir import strict_json
 
     out.mkdir(parents=True, exist_ok=True)
-    md, js = out / f"{stem}.md", out / f"{stem}.json"
-    md.write_text(to_markdown(table))
+    md, tex, js = out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.json"
+    md.write_text(to_markdown(table, style))
+    tex.write_text(to_latex(table, style))
     js.write_text(json.dumps(strict_json(table), indent=1, allow_nan=False))
-    return md, js
+    return md, tex, js

@@ -1,14 +1,17 @@
 """``gcnt curves DIR...``: learning curves (paper figures 6, 7, 9) from run directories.
 
-One panel per task, one line per method: mean ± standard error over seeds against environment
-steps, at the logged steps (seeds that log at different steps interpolated onto the union of
+One panel per task, one line per method: the mean over seeds with a band of ± 1 standard error
+(the legend says so and gives each method's number of seeds) against environment steps, at the
+logged steps (seeds that log at different steps interpolated onto the union of
 their steps), each marked. ``--metric eval`` plots the return of the evaluations made during
 training (``eval/step<N>.json``, the curve of the paper's figures) instead of the exploring
 training return; a dotted line marks the end of TD3's random-action phase. Per-robot runs
 (``gcnt sweep --per-robot``: SR-fair, SR-top) are averaged over the robots of each seed first; a
 recipe's ``label`` names its line. Several directories go into the same figure (e.g. a world's
-universal sweep and its SR sweep). Writes ``curves.png`` and ``curves.csv`` (to ``--out``,
-default ``<DIR>/figures``).
+universal sweep and its SR sweep). Writes ``curves.png`` (``--format pdf,svg``: those files;
+size, fonts, title and display names as the figure options say) and ``curves.csv`` (to
+``--out``, default ``<DIR>/figures``), and ``curves.caption.txt``: the gcnt versions and commits
+the runs come from (their ``provenance.json``).
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+
+from gcnt.commands.options import add_figure_options, figure_style
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--smooth", type=int, default=1, help="moving average over N log rows (off)")
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", default="curves", help="file name stem (default: curves)")
+    add_figure_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,23 +59,35 @@ def run(args: argparse.Namespace) -> int:
         return 2
     out = args.out or default_out(args.paths)
     ylabel = C.metric_label(runs, args.metric)
-    png = C.plot_curves(
+    style = figure_style(args)
+    C.plot_curves(
         rows,
         out / f"{args.name}.png",
         args.metric,
         ylabel=ylabel,
         random_until=C.random_phase(runs),
+        style=style,
     )
     print(ylabel.replace("\n", "; "))
     csv = C.write_csv(rows, out / f"{args.name}.csv")
     groups = list(dict.fromkeys((r["task"], r["method"], r["seeds"], r["robots"]) for r in rows))
     for task, method, seeds, robots in groups:
         last = [r for r in rows if r["task"] == task and r["method"] == method][-1]
-        se = f" ± {last['stderr']:.1f}" if last["stderr"] == last["stderr"] else ""
+        se = f" ± {last['stderr']:.1f} (1 s.e.)" if last["stderr"] == last["stderr"] else ""
         per = f" x {robots} robots" if robots > 1 else ""
         print(
             f"{task:<12} {method:<14} seeds {seeds}{per}  at {last['env_steps']:>9} steps: "
             f"{last['mean']:.1f}{se}"
         )
-    print(f"written: {png}\nwritten: {csv}")
+    for path in [*style.outputs(out / f"{args.name}.png"), csv]:
+        print(f"written: {path}")
+    _caption(runs, out / f"{args.name}.caption.txt")
     return 0
+
+
+def _caption(runs: list, path: Path) -> None:
+    """Print and write the code the runs come from (gcnt versions and commits)."""
+    from gcnt import provenance
+
+    text = provenance.caption(r.path for r in runs)
+    print(f"{text}\nwritten: {provenance.write_caption(text, path)}")

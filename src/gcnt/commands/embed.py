@@ -4,7 +4,9 @@ limb of the CWHH++ robots, side by side: marker = robot family, colour = limb ty
 legend for each below the panels.
 
 Runs give trained networks (in a sweep directory, the first seed of each GCNT/SWAT method);
-without runs, or with ``--untrained``, freshly initialised networks. Writes ``embed.png``.
+without runs, or with ``--untrained``, freshly initialised networks. Panels are titled with the
+methods' and tasks' display names. Writes ``embed.png`` (``--format pdf,svg``: those; the figure
+options set size, fonts, title and names).
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+
+from gcnt.commands.options import add_figure_options, figure_style
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="t-SNE (and untrained init) seed")
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", default="embed", help="file name stem (default: embed)")
+    add_figure_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
 
     embeddings = []
+    style = figure_style(args)
     try:
         if args.paths:
             runs = [r for r in find_runs(args.paths) if r.method in STRUCTURAL_METHODS]
@@ -48,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
                     f"(methods with structural vectors: {', '.join(STRUCTURAL_METHODS)})"
                 )
             for r in runs if args.all_seeds else first_seed_per_method(runs):
-                embeddings.append(run_embedding(r, args.robots))
+                embeddings.append(run_embedding(r, args.robots, style.names))
         untrained = (
             args.untrained
             if args.untrained is not None
@@ -56,17 +62,18 @@ def run(args: argparse.Namespace) -> int:
         )
         for m in untrained:
             torch.manual_seed(args.seed)
-            embeddings.append(vectors(m, args.robots, title=f"{m} (untrained)"))
+            embeddings.append(vectors(m, args.robots, title=f"{style.name(m)} (untrained)"))
         if not embeddings:
             raise AnalysisError("nothing to embed: give runs or --untrained METHODS")
     except AnalysisError as e:
         log.error("%s", e)
         return 2
     out = args.out or (default_out(args.paths) if args.paths else Path("figures"))
-    png = plot_embeddings(embeddings, out / f"{args.name}.png", seed=args.seed)
+    plot_embeddings(embeddings, out / f"{args.name}.png", seed=args.seed, style=style)
     for e in embeddings:
         print(
             f"{e.title}: {len(e.vectors)} limbs of {len(set(e.robots))} robots, d={e.vectors.shape[1]}"
         )
-    print(f"written: {png}")
+    for path in style.outputs(out / f"{args.name}.png"):
+        print(f"written: {path}")
     return 0

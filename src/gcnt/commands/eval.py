@@ -45,9 +45,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--video",
         action="store_true",
-        help="instead of evaluating, record one deterministic rollout per robot to "
+        help="instead of evaluating, record one deterministic episode per robot to "
         "videos/<robot>-step<N>.mp4 (the recipe and evaluations are left as they are)",
     )
+    p.add_argument(
+        "--video-steps",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="with --video: at most N control steps per video (default: the whole episode, "
+        "until the robot falls or env.max_episode_steps)",
+    )
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
 
 
 def protocol(recipe, deterministic: bool | None) -> bool:
@@ -104,15 +119,25 @@ def _label(specs: list[str], resolved: list[str] | None = None) -> str:
     return f"{label}-{digest}"
 
 
+def _run_recipe(path: Path):
+    """The recipe of the run directory ``path``, read without loading torch, so that mistakes in
+    what to evaluate are reported before anything heavy is loaded."""
+    from gcnt.analysis.runs import RECIPE_FILE
+    from gcnt.recipes import load_recipe
+
+    if not (path / RECIPE_FILE).exists():
+        raise FileNotFoundError(f"{path}: no {RECIPE_FILE}; is this a gcnt run directory?")
+    return load_recipe(path / RECIPE_FILE)
+
+
 def run(args: argparse.Namespace) -> int:
     from gcnt.analysis.runs import protocol_text
     from gcnt.recipes import RecipeError
-    from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
-    from gcnt.rl.loop import check_network
-    from gcnt.rl.run_dir import CheckpointError, RunDir, RunDirError
 
-    run_dir = RunDir(existing_path(args.run_dir))
-    recipe = run_dir.load_recipe()
+    if args.video_steps is not None and not args.video:
+        raise RecipeError("--video-steps only applies to --video")
+    path = existing_path(args.run_dir)
+    recipe = _run_recipe(path)
     deterministic = protocol(recipe, args.deterministic)
     episodes = args.episodes if args.episodes is not None else default_episodes(deterministic)
     if episodes < 1:
@@ -127,15 +152,24 @@ def run(args: argparse.Namespace) -> int:
             specs.append(spec)
     if not specs:
         raise RecipeError(
-            "no robots to evaluate (the recipe has no test robots; pass --robots ...)"
+            f"{path}: no robots to evaluate (the recipe has no test robots; pass --robots ...)"
         )
+    from gcnt.morphology.catalogues import resolve_robots
+
+    robots = resolve_robots(specs, repeats=True)  # unknown names, bad files: before torch loads
+    from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
+    from gcnt.rl.factories import check_benchmark
+    from gcnt.rl.loop import check_network
+    from gcnt.rl.run_dir import CheckpointError, RunDir, RunDirError
+
+    run_dir = RunDir(path)
     check_network(recipe)
-    robots = _check_benchmark(recipe, run_dir, specs)
+    check_benchmark(recipe, robots, f"--robots of run {run_dir.path}")
     run_dir.eval_dir()  # a link out of the run directory is refused before any work
     state = run_dir.load_checkpoint()
     policy = state.get("policy") or {"actor": state["actor"]}  # "actor": checkpoints before 0.2
     if args.video:
-        return _videos(recipe, run_dir, policy, robots, state["env_steps"])
+        return _videos(recipe, run_dir, policy, robots, state["env_steps"], args.video_steps)
     try:
         results = evaluate(
             recipe, policy, specs, episodes=episodes, seed=args.seed, deterministic=deterministic
@@ -171,20 +205,12 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_benchmark(recipe, run_dir, specs: list[str]) -> list:
-    """The robots of ``specs``; a RecipeError naming the first one of another benchmark than
-    the run's (its env cannot step that robot)."""
-    from gcnt.rl.evaluate import eval_robots
-    from gcnt.rl.factories import check_benchmark
-
-    return check_benchmark(recipe, eval_robots(specs), f"--robots of run {run_dir.path}")
-
-
-def _videos(recipe, run_dir, policy: dict, robots: list, env_steps: int) -> int:
-    """One deterministic rollout video per robot, under the run's ``videos/``."""
+def _videos(recipe, run_dir, policy: dict, robots: list, env_steps: int, steps: int | None) -> int:
+    """One deterministic episode per robot (at most ``steps`` control steps), as a video under
+    the run's ``videos/``."""
     from gcnt.rl.evaluate import render_policy
 
     for robot in robots:
         path = run_dir.path / "videos" / f"{robot.name}-step{env_steps}.mp4"
-        print(f"written: {render_policy(recipe, policy, path, robot=robot)}")
+        print(f"written: {render_policy(recipe, policy, path, robot=robot, steps=steps)}")
     return 0

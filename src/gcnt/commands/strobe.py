@@ -4,7 +4,9 @@ rendered headless with MuJoCo (EGL).
 
 In a sweep directory, one row per method (its first seed) unless ``--all-seeds``. Poses are spaced
 in time, or by the root's x position (at least ``--min-gap`` m apart) for a policy that barely
-moves. Writes ``strobe-<robot>-<task>.png`` (``--name`` to choose the stem).
+moves. Rows are labelled with the methods' display names. Writes ``strobe-<robot>-<task>.png``
+(``--name`` to choose the stem; ``--format pdf,svg``: those; the figure options set size, fonts,
+title and names).
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+
+from gcnt.commands.options import add_figure_options, figure_style
 
 log = logging.getLogger(__name__)
 
@@ -33,12 +37,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="env seed")
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", help="file name stem (default: strobe-<robot>-<task>)")
+    add_figure_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
     from gcnt.analysis.strobe import strobe_runs
 
+    style = figure_style(args)
     try:
         if args.frames < 1 or args.steps < 1 or args.min_gap < 0:
             raise AnalysisError(
@@ -58,8 +64,10 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             min_gap=args.min_gap,
             name=args.name,
+            style=style,
         )
-        print(f"written: {path}")
+        for written in style.outputs(path):
+            print(f"written: {written}")
     except AnalysisError as e:
         log.error("%s", e)
         return 2

@@ -73,7 +73,11 @@ def _options(p: argparse.ArgumentParser) -> None:
         "trained alone: env.robots=[ROBOT] env.test_robots=[]; run ids "
         "<task>/<algo>-<method or the recipe's label>/<robot>/seed<N>",
     )
-    p.add_argument("--group", help="W&B group of all runs (default: the sweep directory's name)")
+    p.add_argument(
+        "--group",
+        help="W&B group prefix: runs are grouped as GROUP/<task>/<algo>-<method> (default "
+        "GROUP: the sweep directory's name); every run is tagged sweep:<sweep directory's name>",
+    )
     p.add_argument(
         "--eval",
         action="append",
@@ -94,6 +98,14 @@ def _options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dry-run", action="store_true", help="write the manifest, print, run nothing")
     local = p.add_argument_group("local pool")
     local.add_argument("--jobs", type=int, help="runs at a time (default: cores / cpus-per-run)")
+    local.add_argument(
+        "--stack-seeds",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="train the seeds of each TD3 method in one process (gcnt train --seeds: one "
+        "vmapped update); default: on when the runs train on a CUDA device, where separate "
+        "processes take turns on the GPU",
+    )
     local.add_argument(
         "--cpus-per-run", type=int, default=1, help="cores (and threads) per run (default 1)"
     )
@@ -211,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
         if args.status:
             print(manifest.table())
             return 0
+        manifest.record_session()  # the code and command of this session
         manifest.save()
         if args.dry_run:
             print(manifest.table())
@@ -247,6 +260,11 @@ def run(args: argparse.Namespace) -> int:
                 print(f"sweep {manifest.dir}: on {opts.executor}, as submitted before", flush=True)
             else:
                 opts = None
+            if opts is not None and args.stack_seeds:
+                raise SweepError(
+                    "--stack-seeds runs in the local pool; on a cluster each run is a job of "
+                    "its own"
+                )
             if opts is not None:
                 run_submitit(manifest, opts, wait=not args.no_wait, on_change=report)
                 if args.no_wait:
@@ -263,7 +281,13 @@ def run(args: argparse.Namespace) -> int:
                     flush=True,
                 )
                 manifest.meta["cluster"] = {"executor": "pool", "cpus_per_run": args.cpus_per_run}
-                run_local(manifest, jobs=jobs, cpus_per_run=args.cpus_per_run, on_change=report)
+                run_local(
+                    manifest,
+                    jobs=jobs,
+                    cpus_per_run=args.cpus_per_run,
+                    on_change=report,
+                    stack_seeds=args.stack_seeds,
+                )
     except SweepError as e:
         log.error("%s", e)
         return 2

@@ -34,7 +34,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="RUN_DIR",
         help="fine-tune: start from the trained networks of the run in RUN_DIR (and its "
         "observation statistics) with fresh optimisers and replay, on this recipe's robots "
-        "(the recipe key init_from)",
+        "(the recipe key init_from); a task of its own: <source task>-ft unless the recipe "
+        "names another",
     )
 
 
@@ -77,6 +78,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _train_one(args: argparse.Namespace, made: list) -> int:
     from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.rl.init_from import own_task
     from gcnt.rl.run_dir import RunDir
     from gcnt.rl.run_lock import run_lock
 
@@ -93,6 +95,7 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
             if not args.recipe:
                 raise RecipeError("give a recipe file or --resume RUN_DIR")
             recipe = load_recipe(args.recipe, args.overrides)
+            own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
             run_dir = RunDir.for_recipe(recipe)
             resume = False
             if not run_dir.path.exists():
@@ -106,8 +109,10 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
         prepared = prepare(recipe, resume=resume)
         held.enter_context(run_lock(run_dir.path))
         if not args.resume:
-            run_dir.create(recipe)
-        elif not resume:
+            run_dir.create(recipe)  # with this session's provenance
+        elif not resume:  # no checkpoint: trained again from step 0 (a resumed one: in train)
+            run_dir.record_session()
+        if args.resume and not resume:
             aside = run_dir.set_aside_metrics()  # rows of the killed attempt, kept but not mixed in
             if aside is not None:
                 log.info("metrics of the attempt without a checkpoint moved to %s", aside)
@@ -118,6 +123,7 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
 
 def _run_seeds(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.rl.init_from import own_task
     from gcnt.rl.td3.stacked_loop import parse_seeds, seed_recipes, train_seeds
 
     if args.resume:
@@ -128,6 +134,7 @@ def _run_seeds(args: argparse.Namespace) -> int:
     if not args.recipe:
         raise RecipeError("--seeds: give a recipe file")
     recipe = load_recipe(args.recipe, args.overrides)
+    own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
     runs = train_seeds(seed_recipes(recipe, parse_seeds(args.seeds)))
     for run in runs:
         print(f"run directory: {run.path}")

@@ -1,15 +1,19 @@
 """``gcnt variants DIR... --sets variants-kinematics,variants-dynamics``: returns on robot variant
-sets (paper figure 8) per method, with 95% confidence intervals from a stratified bootstrap over
-seeds of each seed's aggregate over the set's robots (rliable's interval for few runs).
+sets (paper figure 8) per method, with intervals over seeds of each seed's aggregate over the
+set's robots: a 95% confidence interval from a stratified bootstrap (rliable's interval for few
+runs) where every task has at least 5 seeds, else the range of the seeds' aggregates, called so.
+Every table and figure names its interval and its n.
 
 A set name is an evaluation's label, its robot spec or the spec's split (``gcnt eval RUN --robots
 SPEC``); inside a larger evaluation it selects the robots of the spec it names, never more.
 Tables say which protocol (deterministic or sampled actions, episodes per robot) the numbers come
-from. The figure is the paper's figure 8: a group of bars per method with 95% CI error bars, one
-panel per set (:mod:`gcnt.analysis.bars`); ``--panels`` also writes the rliable-style panels
+from. The figure is the paper's figure 8: a group of bars per method with those intervals as error
+bars, one panel per set (:mod:`gcnt.analysis.bars`); ``--panels`` also writes the rliable-style panels
 (point estimates with intervals, ``--profile``: and performance profiles) as
-``variants-panels.png``. ``--iqm`` adds the interquartile mean. Writes ``variants.png``,
-``variants.md`` and ``variants.json``.
+``variants-panels.png``. ``--iqm`` adds the interquartile mean. Writes ``variants.png``
+(``--format pdf,svg``: those; the figure options set size, fonts, title and display names; a
+robot name pattern as a set is shown as the robots it matched), ``variants.md`` and
+``variants.json``.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+
+from gcnt.commands.options import add_figure_options, figure_style
 
 log = logging.getLogger(__name__)
 
@@ -39,9 +45,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--reps", type=int, default=2000, help="bootstrap resamples (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap's draws (0)")
-    p.add_argument("--confidence", type=float, default=0.95, help="interval level (0.95)")
+    p.add_argument(
+        "--confidence",
+        type=float,
+        default=0.95,
+        help="bootstrap interval level (0.95; with 5 or more seeds per task)",
+    )
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", default="variants", help="file name stem (default: variants)")
+    add_figure_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,15 +76,19 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or default_out(args.paths)
     from gcnt.analysis.bars import plot_bars
 
-    png = plot_bars(summary, out / f"{args.name}.png", stats)
+    style = figure_style(args)
+    plot_bars(summary, out / f"{args.name}.png", stats, style=style)
+    figures = style.outputs(out / f"{args.name}.png")
     if args.panels or args.profile:
-        V.plot(summary, out / f"{args.name}-panels.png", stats, args.profile)
+        V.plot(summary, out / f"{args.name}-panels.png", stats, args.profile, style)
+        figures += style.outputs(out / f"{args.name}-panels.png")
     md = out / f"{args.name}.md"
-    md.write_text(V.to_markdown(summary, stats))
+    md.write_text(V.to_markdown(summary, stats, style))
     js = V.write_json(summary, out / f"{args.name}.json")
-    print(V.to_markdown(summary, stats))
+    print(V.to_markdown(summary, stats, style))
     missing = [s for s in sets if s not in summary]
     if missing:
         print(f"no evaluations for: {', '.join(missing)}")
-    print(f"written: {png}\nwritten: {md}\nwritten: {js}")
+    for path in [*figures, md, js]:
+        print(f"written: {path}")
     return 0

@@ -1,10 +1,11 @@
 """``gcnt zeroshot DIR...``: the zero-shot table (paper table 1) from run directories.
 
-Per test robot, mean ± standard error over seeds of each seed's mean return; the best method of
-each row in bold; each table says which protocol (deterministic or sampled actions, episodes per
+Per test robot, mean ± 1 standard error over seeds of each seed's mean return; a row's best
+mean in bold where its interval lies above the runner-up's; each table says which protocol (deterministic or sampled actions, episodes per
 robot) its numbers come from. Reads the runs' evaluations (``eval/*.json``); ``--evaluate`` first
 runs ``gcnt eval RUN --robots test`` (the recipe's protocol; ``--episodes N``) on every run that
-has none. Writes ``zeroshot.md`` and ``zeroshot.json``.
+has none. Writes ``zeroshot.md``, ``zeroshot.tex`` (methods by display name: ``--names``) and
+``zeroshot.json``.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import argparse
 import logging
 import subprocess
 from pathlib import Path
+
+from gcnt.commands.options import add_names_option, table_style
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "as the recipe's eval.deterministic)",
     )
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    add_names_option(p)
 
 
 def _evaluate(runs, episodes: int | None, force: bool) -> int:
@@ -79,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", e)
         return 2
     out = args.out or default_out(args.paths)
-    md, js = write(table, out)
-    print(to_markdown(table))
-    print(f"written: {md}\nwritten: {js}")
+    style = table_style(args)
+    written = write(table, out, style=style)
+    print(to_markdown(table, style))
+    for path in written:
+        print(f"written: {path}")
     return 0

@@ -18,6 +18,7 @@ environment variable ``GCNT_MORPHOLOGIES`` points.
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
 import functools
 import importlib
@@ -129,8 +130,28 @@ def unregister_catalogue(name: str) -> None:
     _clear_caches()
 
 
+def refresh_catalogues() -> None:
+    """Forget the cached robot names, robots and split files (after catalogue files changed)."""
+    _clear_caches()
+
+
+#: A folder ``<name>/`` of the morphologies folder that holds this file is the catalogue
+#: ``<name>`` of UNIMAL robots imported from MetaMorph's files (``gcnt import-unimal``,
+#: ``gcnt.morphology.unimal.imported``); the file is its split file.
+IMPORTED_INDEX = "catalogue.yaml"
+
+
+def imported_catalogues() -> dict[str, Path]:
+    """Catalogues imported into the morphologies folder: name -> folder."""
+    try:
+        root = morphologies_dir()
+    except FileNotFoundError:
+        return {}
+    return {p.parent.name: p.parent for p in sorted(root.glob(f"*/{IMPORTED_INDEX}"))}
+
+
 def catalogue_names() -> list[str]:
-    return list(dict.fromkeys([*_BUILTIN, *_REGISTRY]))
+    return list(dict.fromkeys([*_BUILTIN, *_REGISTRY, *imported_catalogues()]))
 
 
 def get_catalogue(name: str) -> Catalogue:
@@ -138,6 +159,10 @@ def get_catalogue(name: str) -> Catalogue:
     if name not in _REGISTRY and name in _BUILTIN:
         module, attr = _BUILTIN[name].split(":")
         _REGISTRY.setdefault(name, getattr(importlib.import_module(module), attr))
+    if name not in _REGISTRY and (folder := imported_catalogues().get(name)) is not None:
+        from gcnt.morphology.unimal.imported import imported_catalogue
+
+        return imported_catalogue(folder)  # read afresh: the morphologies folder may change
     if name not in _REGISTRY:
         raise ValueError(
             f"unknown catalogue {name!r}{did_you_mean(name, catalogue_names())} "
@@ -343,7 +368,47 @@ def _folder_robots(folder: Path) -> list[Robot]:
     return [load_robot(f) for f in files]
 
 
-def resolve_robots(specs: Sequence[str]) -> list[Robot]:
+def robot_identity(robot: Robot) -> tuple[str, ...]:
+    """What tells robots apart: a robot read from a file is that file (resolved), read as its
+    family with its text; a robot without a file (generated) is its name. A catalogue robot and
+    the path of its file are thus one robot, and two files of one model name are two."""
+    if Path(robot.source).is_file():
+        return (os.path.realpath(robot.source), robot.family, robot.xml)
+    return (robot.name,)
+
+
+def _names_by_folder(paths: Sequence[Path], taken: set[str]) -> list[str]:
+    """Distinct names for robot files that share a stem: the stem after the fewest of its
+    folders that tell them apart, joined by dots (``suite.hopper``, ``assets.hopper``), and
+    none of the names in ``taken``."""
+    folders = [Path(os.path.realpath(p)).parent.parts[1:] for p in paths]
+    names = [Path(p).stem for p in paths]
+    for k in range(1, max(map(len, folders)) + 1):
+        names = [".".join((*f[-k:], Path(p).stem)) for f, p in zip(folders, paths, strict=True)]
+        if len(set(names)) == len(names) and not taken.intersection(names):
+            break
+    return names
+
+
+def _name_apart(robots: list[Robot], from_file: list[bool]) -> list[Robot]:
+    """``robots`` (distinct) with the robots read from files that share a name with another
+    robot renamed after their folders (see :func:`_names_by_folder`); catalogue robots keep
+    their names."""
+    groups: dict[str, list[int]] = {}
+    for i, r in enumerate(robots):
+        groups.setdefault(r.name, []).append(i)
+    out, taken = list(robots), set(groups)
+    for idx in groups.values():
+        files = [i for i in idx if from_file[i]]
+        if len(idx) < 2 or not files:
+            continue
+        new = _names_by_folder([Path(robots[i].source) for i in files], taken)
+        for i, n in zip(files, new, strict=True):
+            out[i] = dataclasses.replace(robots[i], name=n)
+    return out
+
+
+def resolve_robots(specs: Sequence[str], *, repeats: bool = False) -> list[Robot]:
     """Robots from specs, in order. A spec is one of:
 
     * a robot name of any catalogue, e.g. ``walker_3_main`` or ``unimal_0042``;
@@ -353,24 +418,30 @@ def resolve_robots(specs: Sequence[str]) -> list[Robot]:
     * a shell-style pattern over the catalogues' robot names (``*``, ``?``, ``[...]``), e.g.
       ``unimal_000?-length*``: every matching robot in catalogue order (none matching is an error).
 
-    A robot named twice (directly or through two specs) is an error: a robot list names each robot
-    once, and ``env.copies`` runs more copies of every robot.
+    A robot listed twice (directly or through two specs; a catalogue robot and its own file are
+    one robot, see :func:`robot_identity`) is an error: a robot list names each robot once, and
+    ``env.copies`` runs more copies of every robot. With ``repeats``, a robot listed again is
+    kept once instead (an evaluation's robots). Robot files are told apart by their file: two
+    files of one name (gymnasium's and dm_control's ``hopper.xml``) are two robots, named after
+    the folders that tell them apart (``assets.hopper``, ``suite.hopper``).
     """
     if isinstance(specs, str):
         specs = [specs]
     robots: list[Robot] = []
-    origin: dict[str, str] = {}
+    from_file: list[bool] = []
+    origin: dict[tuple[str, ...], tuple[str, str]] = {}  # identity -> (name, spec)
     benchmarks: dict[str, dict[str, list[str]]] | None = None
     for spec in specs:
         path = Path(spec)
+        is_file = False
         if robot_catalogue(spec) is not None:
             found = [load_named(spec)]
         elif _is_pattern(spec) and not path.exists():
             found = [load_named(n) for n in _matching_names(spec)]
         elif path.is_dir():
-            found = _folder_robots(path)
+            found, is_file = _folder_robots(path), True
         elif spec.endswith(".xml") or os.sep in spec or path.is_file():
-            found = [load_robot(spec)]
+            found, is_file = [load_robot(spec)], True
         else:
             benchmarks = benchmarks if benchmarks is not None else load_benchmarks()
             if ":" in spec or spec in benchmarks:
@@ -382,12 +453,17 @@ def resolve_robots(specs: Sequence[str]) -> list[Robot]:
                     f"{', '.join(b + ':train|test' for b in benchmarks)})"
                 )
         for r in found:
-            if r.name in origin:
-                where = "" if origin[r.name] == spec else f" (from {origin[r.name]!r} and {spec!r})"
+            key = robot_identity(r)
+            if key in origin:
+                if repeats:
+                    continue
+                name, first = origin[key]
+                where = "" if first == spec else f" (from {first!r} and {spec!r})"
                 raise DuplicateRobotError(
-                    f"robot {r.name!r} is listed twice{where}; list each robot once and set "
+                    f"robot {name!r} is listed twice{where}; list each robot once and set "
                     "env.copies to run more copies of every robot"
                 )
-            origin[r.name] = spec
+            origin[key] = (r.name, spec)
             robots.append(r)
-    return robots
+            from_file.append(is_file)
+    return _name_apart(robots, from_file)

@@ -4,12 +4,18 @@ The paper's table 1 protocol is 100 deterministic episodes per robot and seed; M
 protocol is 32 episodes per robot with sampled actions. Episodes run in parallel copies of each
 robot; every copy runs a fixed share of the episodes, so early-ending (failed) episodes are not
 over-represented. The env comes from the recipe's benchmark, the policy from its algorithm.
+
+Each robot's episode lengths (control steps, mean and shortest) are kept beside its returns; a
+robot whose episodes end within :data:`SHORT_EPISODE_STEPS` steps on average (below the time
+limit) is named in a warning: its return says little about the policy (e.g. a robot file whose
+start pose its task's termination rule reads as a fall).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,18 +32,21 @@ from gcnt.rl.device import on_device
 from gcnt.rl.factories import base_env, make_env
 from gcnt.rl.run_dir import RunDirError, strict_json
 
+log = logging.getLogger(__name__)
+
+#: Episodes shorter than this on average (in control steps, and below the time limit) are
+#: reported in a warning.
+SHORT_EPISODE_STEPS = 10
+
 
 class PolicyMismatchError(ValueError):
     """A checkpoint's policy weights that do not fit the network its recipe builds."""
 
 
 def eval_robots(specs: Sequence[str]) -> list[Robot]:
-    """The robots of ``specs``, each once (a robot named twice is evaluated once)."""
-    robots: dict[str, Robot] = {}
-    for spec in specs:
-        for r in resolve_robots([spec]):
-            robots.setdefault(r.source, r)
-    return list(robots.values())
+    """The robots of ``specs``, each once (a robot named twice is evaluated once; robot files
+    of one name are distinct robots, see :func:`~gcnt.morphology.catalogues.resolve_robots`)."""
+    return resolve_robots(specs, repeats=True)
 
 
 def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
@@ -112,22 +121,49 @@ def evaluate(
     n_env = env.batch_size[0]
     target = torch.tensor([quota[i % copies] for i in range(n_env)])
     got = torch.zeros(n_env, dtype=torch.long)
+    steps = torch.zeros(n_env, dtype=torch.long)  # control steps of each sub-env's episode
     rets: list[list[float]] = [[] for _ in robots]
+    lengths: list[list[int]] = [[] for _ in robots]
     td = env.reset()
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     with set_exploration_type(mode):
         while bool((got < target).any()):
             td = actor(td)
             td, td_next = env.step_and_maybe_reset(td)
+            steps += 1
             done = td["next", "done"].squeeze(-1)
             ep_ret = td["next", "episode_reward"].squeeze(-1)
             for i in done.nonzero().flatten().tolist():
                 if got[i] < target[i]:
                     rets[i // copies].append(float(ep_ret[i]))
+                    lengths[i // copies].append(int(steps[i]))
                     got[i] += 1
+            steps[done.cpu()] = 0
             td = td_next
     env.close()
-    return {r.name: summarize(rets[i]) for i, r in enumerate(robots)}
+    results = {r.name: summarize(rets[i], lengths[i]) for i, r in enumerate(robots)}
+    warn_short_episodes(results, recipe.env.max_episode_steps)
+    return results
+
+
+def warn_short_episodes(results: dict[str, dict], max_episode_steps: int) -> list[str]:
+    """Warn about each robot whose episodes last fewer than :data:`SHORT_EPISODE_STEPS` control
+    steps on average while the time limit allows more: its episodes end (terminate) almost at
+    once. Returns those robots' names."""
+    limit = min(SHORT_EPISODE_STEPS, max_episode_steps)
+    short = [n for n, r in results.items() if r.get("length_mean", limit) < limit]
+    for name in short:
+        r = results[name]
+        log.warning(
+            "robot %r: its episodes end after %.1f control steps on average (shortest %d, time "
+            "limit %d): its task's termination rule ends them almost at once, so its return "
+            "says little about the policy",
+            name,
+            r["length_mean"],
+            r["length_min"],
+            max_episode_steps,
+        )
+    return short
 
 
 @torch.no_grad()
@@ -137,10 +173,11 @@ def render_policy(
     path: Path,
     *,
     robot: str | Robot | None = None,
-    steps: int = 300,
+    steps: int | None = None,
 ) -> Path:
-    """A video of the deterministic policy on ``robot`` (a robot, or a spec whose first robot
-    is filmed; default: the first training robot)."""
+    """A video of one episode of the deterministic policy on ``robot`` (a robot, or a spec
+    whose first robot is filmed; default: the first training robot), at most ``steps`` control
+    steps (None: until the episode ends)."""
     from gcnt.envs.render import render_rollout
 
     if isinstance(robot, Robot):
@@ -155,10 +192,16 @@ def render_policy(
     return out
 
 
-def summarize(returns: Sequence[float]) -> dict:
+def summarize(returns: Sequence[float], lengths: Sequence[int] | None = None) -> dict:
+    """Mean, standard error and list of the episode ``returns``; with the episodes' ``lengths``
+    (control steps), also ``length_mean`` and ``length_min``."""
     x = np.asarray(returns, dtype=np.float64)
     stderr = float(x.std(ddof=1) / math.sqrt(len(x))) if len(x) > 1 else float("nan")
-    return {"mean": float(x.mean()), "stderr": stderr, "episodes": len(x), "returns": x.tolist()}
+    out = {"mean": float(x.mean()), "stderr": stderr, "episodes": len(x), "returns": x.tolist()}
+    if lengths is not None:
+        out["length_mean"] = float(np.mean(lengths))
+        out["length_min"] = int(np.min(lengths))
+    return out
 
 
 def write_eval(
@@ -185,15 +228,31 @@ def write_eval(
 
 
 def format_table(results: dict[str, dict]) -> str:
+    """One row per robot: mean return, standard error, episodes and episode length (control
+    steps: mean, shortest; ``-`` where the results have none)."""
     width = max([5, *(len(n) for n in results)])
-    lines = [f"{'robot':<{width}}  {'return':>10}  {'± s.e.':>8}  episodes"]
+    lines = [f"{'robot':<{width}}  {'return':>10}  {'± s.e.':>8}  episodes  length (mean, min)"]
     for name, r in results.items():
-        lines.append(f"{name:<{width}}  {r['mean']:>10.1f}  {r['stderr']:>8.1f}  {r['episodes']}")
+        length = f"{r['length_mean']:.1f}, {r['length_min']}" if "length_mean" in r else "-"
+        lines.append(
+            f"{name:<{width}}  {r['mean']:>10.1f}  {r['stderr']:>8.1f}  {r['episodes']:>8}  "
+            f"{length}"
+        )
     if len(results) > 1:
+        from gcnt.analysis.intervals import MIN_BOOTSTRAP
+
         s = summarize_robots(results)
+        if s["robots"] >= MIN_BOOTSTRAP:
+            interval = (
+                f"95% CI [{s['ci95_low']:.1f}, {s['ci95_high']:.1f}] "
+                f"(bootstrap over n = {s['robots']} robots)"
+            )
+        else:  # too few robots for a bootstrap CI: their range, called so
+            means = [r["mean"] for r in results.values()]
+            interval = f"range [{min(means):.1f}, {max(means):.1f}] over n = {s['robots']} robots"
         lines.append(
             f"{'mean over ' + str(s['robots']) + ' robots':<{width}}  {s['mean']:>10.1f}  "
-            f"95% CI [{s['ci95_low']:.1f}, {s['ci95_high']:.1f}] (bootstrap over robots)"
+            + interval
         )
     return "\n".join(lines)
 

@@ -13,7 +13,14 @@ The two runs must agree on what the weights mean: the algorithm, the benchmark a
 (method, size preset and sizes); every tensor's shape is then checked, which covers the per-limb
 token width and a height map present on one side only. A disagreement is one RecipeError naming
 both sides. The new run's ``recipe.yaml`` records where it started, under ``resolved.init_from``:
-the source run directory, the env steps of its checkpoint and the checkpoint file's SHA-256.
+the source run directory, its task and fingerprint (:attr:`gcnt.analysis.runs.Run.fingerprint`:
+fine-tunes of the seeds of one experiment are seeds of one fine-tune), the env steps of its
+checkpoint and the checkpoint file's SHA-256.
+
+A fine-tuned run is an experiment of its own, never a seed of the runs it started from: when its
+recipe keeps the source run's task, its task becomes ``<source task>-ft`` (:func:`own_task`), so
+that it is written under ``runs/<task>-ft/`` and analysed apart; a recipe that names another task
+keeps it.
 """
 
 from __future__ import annotations
@@ -30,6 +37,18 @@ from gcnt.suggest import existing_path
 
 #: the key of the record in the run's ``resolved:`` section
 INIT_KEY = "init_from"
+#: appended to the source run's task to name a fine-tuned run's task (:func:`own_task`)
+FINE_TUNE_SUFFIX = "-ft"
+
+
+def own_task(recipe: Recipe) -> None:
+    """Give the new run of ``recipe``, when it starts from a trained run, a task of its own:
+    ``<source task>-ft`` where the recipe's task is the source run's (another task is kept)."""
+    if not recipe.init_from:
+        return
+    task = _source(recipe).load_recipe().task
+    if recipe.task == task:
+        recipe.task = task + FINE_TUNE_SUFFIX
 
 
 def origin(recipe: Recipe, algo: Algorithm, *, resume: bool = False) -> dict[str, Any]:
@@ -52,9 +71,12 @@ def origin(recipe: Recipe, algo: Algorithm, *, resume: bool = False) -> dict[str
 def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
     """Load the trained networks of the run ``recipe.init_from`` into ``algo`` (built for
     ``recipe``); returns the record of where it started."""
+    from gcnt.analysis.runs import Run
+
     where = f"init_from {recipe.init_from}"
-    source = RunDir(existing_path(recipe.init_from, "init_from: run directory"))
-    check_compatible(recipe, source.load_recipe(), where)
+    source = _source(recipe)
+    source_recipe = source.load_recipe()
+    check_compatible(recipe, source_recipe, where)
     state = source.load_checkpoint(map_location=recipe.device)
     if state.get("algo", recipe.algo) != recipe.algo:
         raise RecipeError(
@@ -70,9 +92,15 @@ def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
         raise RecipeError(f"{where}: {detail}") from None
     return {
         "run": str(source.path.resolve()),
+        "task": source_recipe.task,
+        "fingerprint": Run(source.path).fingerprint,
         "env_steps": int(state["env_steps"]),
         "checkpoint_sha256": file_sha256(source.checkpoint_path),
     }
+
+
+def _source(recipe: Recipe) -> RunDir:
+    return RunDir(existing_path(recipe.init_from, "init_from: run directory"))
 
 
 def check_compatible(recipe: Recipe, source: Recipe, where: str = "init_from") -> None:

@@ -1,4 +1,5 @@
-"""A run's directory: resolved recipe, metrics, checkpoints, eval results, videos.
+"""A run's directory: resolved recipe, metrics, checkpoints, eval results, videos, and
+``provenance.json`` (the code, packages and command of each session: :mod:`gcnt.provenance`).
 
 Nothing here depends on W&B being reachable: ``metrics.jsonl`` (one JSON line per log step) is the
 local record, and W&B (offline by default) or CSV logging mirrors it through torchrl's loggers.
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from gcnt import provenance
 from gcnt.files import GiB, open_regular
 from gcnt.recipes import Recipe, RecipeError, load_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
@@ -93,16 +95,24 @@ class RunDir:
         return self.path / "checkpoints" / "buffers"
 
     def create(self, recipe: Recipe) -> None:
-        """Make the directory and write the recipe; an existing run is never overwritten."""
+        """Make the directory and write the recipe and this session's provenance; an existing
+        run is never overwritten."""
         self.check_new()
         try:
             (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
             self.save_recipe(recipe)
+            provenance.add_session(self.path)
         except OSError as e:
             raise RunDirError(
                 f"run_dir {self.path}: cannot create the run directory ({e.strerror or e}"
                 f"{': ' + str(e.filename) if e.filename else ''})"
             ) from None
+
+    def record_session(self) -> None:
+        """Add this session (code, packages, machine, command) to ``provenance.json``: a
+        resumed run, so that each session's code is known."""
+        with _writing(self.path / provenance.PROVENANCE_FILE, "the provenance"):
+            provenance.add_session(self.path)
 
     def check_new(self) -> None:
         """A FileExistsError (pointing to ``--resume``) where the directory holds a run."""
@@ -353,10 +363,17 @@ def seed_everything(seed: int) -> None:
 
 
 def check_logger(recipe: Recipe) -> None:
-    """W&B online logging needs credentials: a RecipeError before a run starts, not W&B's
-    traceback after its directory exists."""
+    """W&B's tags and online logging's credentials: a RecipeError before a run starts, not
+    W&B's traceback after its directory exists."""
     cfg = recipe.logger
-    if cfg.backend != "wandb" or cfg.mode != "online":
+    if cfg.backend != "wandb":
+        return
+    for tag in cfg.tags:
+        if not 1 <= len(tag) <= MAX_TAG:
+            raise RecipeError(
+                f"logger.tags: {tag!r} has {len(tag)} characters; W&B takes 1 to {MAX_TAG}"
+            )
+    if cfg.mode != "online":
         return
     import wandb
 
@@ -371,9 +388,19 @@ def check_logger(recipe: Recipe) -> None:
         )
 
 
+#: W&B's longest tag
+MAX_TAG = 64
+
+
 def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
     """torchrl logger per the recipe (None for backend "none"). ``concurrent``: other runs of
-    this process log at the same time (each W&B run is then created beside the others)."""
+    this process log at the same time (each W&B run is then created beside the others).
+
+    A W&B run is tagged ``seed:N`` (and ``logger.tags``); its config is the recipe, the method
+    and the code of this session (gcnt version, commit, uncommitted changes). A resumed run
+    continues the same W&B run (:func:`wandb_id`), but W&B writes each session to a folder of
+    its own (``<run>/wandb/offline-run-<start time>-<id>``, whatever ``resume`` says); ``wandb
+    sync`` uploads a run's folders into that one W&B run, in the order they were started."""
     cfg = recipe.logger
     method = recipe.network.name
     name = cfg.name or f"{recipe.task}-{recipe.algo}-{method}-seed{recipe.seed}"
@@ -394,12 +421,33 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
         save_dir=str(run.path),
         project=project,
         group=group,
-        config={**recipe.to_dict(), "method": method},
-        # stable across processes, so a resumed run continues the same W&B run
-        id=_slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}"),
+        tags=list(dict.fromkeys([*cfg.tags, f"seed:{recipe.seed}"])),
+        config={**recipe.to_dict(), "method": method, "code": _code(run)},
+        id=wandb_id(run, name),
         resume="allow",
         **({"reinit": "create_new"} if concurrent else {}),
     )
+
+
+def wandb_id(run: RunDir, name: str) -> str:
+    """The W&B run id of ``run``: the one its earlier sessions used (W&B names each session's
+    ``run-<id>.wandb`` file after it), so that a resumed run continues the same W&B run even
+    after its directory was moved or its ``logger.name`` changed; for a new run, ``name`` and
+    a hash of the directory's path."""
+    for f in sorted((run.path / "wandb").glob("*run-*/run-*.wandb")):
+        return f.stem[len("run-") :]
+    return _slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}")
+
+
+def _code(run: RunDir) -> dict[str, Any]:
+    """gcnt version, commit and uncommitted changes of the run's latest session (empty where
+    the run has no readable provenance)."""
+    try:
+        sessions = provenance.read_sessions(run.path)
+    except provenance.ProvenanceError:
+        sessions = []
+    last = sessions[-1] if sessions else {}
+    return {k: last[k] for k in ("gcnt_version", "git_commit", "git_dirty") if k in last}
 
 
 def _slug(text: str) -> str:

@@ -1,5 +1,7 @@
 """The grid of a sweep: recipes x methods x seeds (or x robots, ``--per-robot``) expanded into
-:class:`~gcnt.sweep.spec.RunSpec` s, with each run's directory, overrides and W&B names."""
+:class:`~gcnt.sweep.spec.RunSpec` s, with each run's directory, overrides and W&B names: the
+group ``<sweep>/<task>/<algo>-<method>``, the tag ``sweep:<sweep>`` (and ``seed:N``, which every
+run gets)."""
 
 from __future__ import annotations
 
@@ -158,6 +160,11 @@ def _spec(
     seen[run_id] = str(recipe_path)
     run_dir = sweep_dir / run_id
     name = "-".join([task, algo, r.label or method, *([robot] if robot else []), f"seed{seed}"])
+    # W&B: one group per task and method (its seeds, and robots of a per-robot sweep, averaged
+    # together), every run tagged with the sweep
+    group = f"{group}/{slug(task)}/{algo}-{shown}"
+    sweep_tag = f"sweep:{sweep_dir.name}"[:64]  # W&B's longest tag
+    tags = list(dict.fromkeys([*r.logger.tags, sweep_tag]))
     return RunSpec(
         id=run_id,
         run_dir=str(run_dir),
@@ -166,7 +173,13 @@ def _spec(
         algo=algo,
         method=method,
         seed=seed,
-        overrides=[*given, f"run_dir={run_dir}", f"logger.group={group}", f"logger.name={name}"],
+        overrides=[
+            *given,
+            f"run_dir={run_dir}",
+            f"logger.group={json.dumps(group)}",
+            f"logger.name={json.dumps(name)}",
+            f"logger.tags={json.dumps(tags)}",
+        ],
         robot=robot,
     )
 

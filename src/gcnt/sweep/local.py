@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.sweep.manifest import Manifest
-from gcnt.sweep.spec import RunSpec, commands
+from gcnt.sweep.spec import RunSpec, commands, gcnt_command
 from gcnt.sweep.status import ACTIVE, now
 
 log = logging.getLogger(__name__)
@@ -77,6 +77,78 @@ def finish_step(spec: RunSpec, what: str, rc: int) -> None:
         spec.eval_state[what.split(":", 1)[1]] = "done" if rc == 0 else "failed"
 
 
+#: overrides that differ between the seeds of one experiment in a sweep
+_PER_SEED = ("seed=", "run_dir=", "logger.name=")
+
+
+def _experiment_key(spec: RunSpec) -> tuple:
+    """What the seeds of one experiment share: recipe, method, robot and the other overrides."""
+    rest = tuple(o for o in spec.overrides if not o.startswith(_PER_SEED))
+    return (spec.recipe, spec.method, spec.robot, rest)
+
+
+def _stack_by_default(spec: RunSpec, stack: bool | None) -> bool:
+    """Whether the seeds of ``spec``'s experiment train in one process: the stacked update
+    needs the mixed schedule (every seed's mini-batch holds the same robots in the same places);
+    by default (``stack`` None) only on a CUDA device. A recipe that cannot be read: alone."""
+    from gcnt.recipes import RecipeError, load_recipe
+
+    try:
+        recipe = load_recipe(spec.recipe, spec.overrides)
+    except (RecipeError, OSError):
+        return False
+    if recipe.td3.schedule != "mixed":
+        if stack:
+            log.warning(
+                "%s: stacked seeds need td3.schedule=mixed (it is %s): its seeds train one by one",
+                str(Path(spec.run_dir).parent),
+                recipe.td3.schedule,
+            )
+        return False
+    return bool(stack) or recipe.device.startswith("cuda")
+
+
+def stacked_groups(specs: Sequence[RunSpec], stack: bool | None) -> list[list[RunSpec]]:
+    """The runs to start, as groups that one process trains: the TD3 seeds of one experiment
+    that have not started (``gcnt train --seeds``: one vmapped update, one process) when
+    ``stack`` is True, or None and the runs train on a CUDA device (processes sharing one GPU
+    take turns on it, so seeds gain only when they share a process), and their schedule is the
+    mixed one; every other run alone.
+    A run already begun continues alone (``--resume``)."""
+    groups: dict[tuple, list[RunSpec]] = {}
+    out: list[list[RunSpec]] = []
+    for spec in specs:
+        fresh = spec.algo == "td3" and spec.files_state() == "pending" and spec.state != "done"
+        if not fresh or stack is False:
+            out.append([spec])
+            continue
+        key = _experiment_key(spec)
+        if key not in groups:
+            groups[key] = []
+            out.append(groups[key])
+        groups[key].append(spec)
+    split: list[list[RunSpec]] = []
+    for group in out:
+        if len(group) > 1 and _stack_by_default(group[0], stack):
+            split.append(group)
+        else:
+            split.extend([s] for s in group)
+    return split
+
+
+def stacked_command(group: Sequence[RunSpec]) -> list[str]:
+    """``gcnt train RECIPE ... run_dir=<parent> --seeds A,B,...``: the seeds' run directories
+    are ``<parent>/seed<N>``, where the sweep put each of them."""
+    first = group[0]
+    parent = Path(first.run_dir).parent
+    for spec in group:
+        if Path(spec.run_dir) != parent / f"seed{spec.seed}":
+            raise ValueError(f"{spec.id}: not a seed directory of {parent}")
+    rest = [o for o in first.overrides if not o.startswith(_PER_SEED)]
+    seeds = ",".join(str(s.seed) for s in group)
+    return [*gcnt_command(), "train", first.recipe, *rest, f"run_dir={parent}", "--seeds", seeds]
+
+
 def run_local(
     manifest: Manifest,
     *,
@@ -84,21 +156,29 @@ def run_local(
     cpus_per_run: int = 1,
     poll: float = 0.5,
     on_change: Callable[[RunSpec], None] | None = None,
+    stack_seeds: bool | None = False,
 ) -> Manifest:
     """Run what is left of every run in a pool of ``jobs`` pinned slots; save the manifest on
     every change. A run another process trains (its lock is held) is left alone. Ctrl-C stops
-    the children, which checkpoint first (``gcnt train`` on SIGINT/SIGTERM)."""
+    the children, which checkpoint first (``gcnt train`` on SIGINT/SIGTERM). ``stack_seeds``:
+    the seeds of one TD3 experiment train in one process (:func:`stacked_groups`; None: on a
+    CUDA device only); a stacked start that is refused before it made any run directory (a
+    method the stacked update cannot vmap) runs its seeds one by one instead."""
     from gcnt.rl.run_lock import holder
 
-    todo = [r for r in manifest.runs if r.state not in ACTIVE and commands(r)]
+    fresh = [r for r in manifest.runs if r.state not in ACTIVE and commands(r)]
+    todo: list[tuple[list[RunSpec], list]] = []
+    for group in stacked_groups(fresh, stack_seeds):
+        steps = commands(group[0]) if len(group) == 1 else [("train", stacked_command(group))]
+        todo.append((group, steps))
     slots = slot_cores(jobs, cpus_per_run)
     free = list(range(jobs))
-    active: dict[int, tuple[subprocess.Popen, RunSpec, list, Any, float]] = {}
+    active: dict[int, tuple[subprocess.Popen, list[RunSpec], list, Any, float]] = {}
     sweep_dir = manifest.dir
 
-    def start(slot: int, spec: RunSpec, steps: list) -> None:
+    def start(slot: int, group: list[RunSpec], steps: list) -> None:
         what, argv = steps[0]
-        logf = run_log_path(sweep_dir, spec)
+        logf = run_log_path(sweep_dir, group[0])
         logf.parent.mkdir(parents=True, exist_ok=True)
         fh = logf.open("a")
         fh.write(f"\n# {now()} slot {slot} cores {slots[slot]}: {' '.join(argv)}\n")
@@ -113,53 +193,89 @@ def run_local(
             if hasattr(os, "sched_setaffinity")
             else None,
         )
-        spec.log = str(logf)
-        if what == "train":
-            spec.state, spec.started, spec.returncode = "running", now(), None
-        active[slot] = (proc, spec, steps, fh, time.monotonic())
+        for spec in group:
+            spec.log = str(logf)
+            if what == "train":
+                spec.state, spec.started, spec.returncode = "running", now(), None
+        active[slot] = (proc, group, steps, fh, time.monotonic())
         manifest.save()
-        if on_change:
-            on_change(spec)
+        if on_change and what == "train":  # an evaluation starting changes no state: the
+            for spec in group:  # run's "done" line is reported once, when training ends
+                on_change(spec)
+
+    def refused_stack(group: list[RunSpec], what: str, rc: int) -> bool:
+        """A stacked start that failed before it made any run directory: its seeds are queued
+        to run one by one."""
+        if len(group) == 1 or what != "train" or rc == 0:
+            return False
+        if any(spec.files_state() != "pending" for spec in group):
+            return False
+        log.warning(
+            "%s: the seeds %s could not train in one process (see %s); training them one by one",
+            str(Path(group[0].run_dir).parent),
+            ",".join(str(spec.seed) for spec in group),
+            group[0].log,
+        )
+        for spec in group:
+            spec.state = "pending"
+            todo.append(([spec], commands(spec)))
+        return True
 
     try:
         while todo or active:
             while free and todo:
-                spec = todo.pop(0)
-                if (who := holder(spec.run_dir)) is not None:  # another process trains it
-                    log.warning("%s: trained by %s; not started", spec.id, who)
-                    spec.state = "running"
+                group, steps = todo.pop(0)
+                held = [(spec, holder(spec.run_dir)) for spec in group]
+                for spec, who in held:
+                    if who is not None:  # another process trains it
+                        log.warning("%s: trained by %s; not started", spec.id, who)
+                        spec.state = "running"
+                if any(who is not None for _, who in held):
+                    # the others of a stacked group start alone
+                    todo[:0] = [([spec], commands(spec)) for spec, who in held if who is None]
                     continue
-                start(free.pop(0), spec, commands(spec))
+                start(free.pop(0), group, steps)
             time.sleep(poll)
             for slot in list(active):
-                proc, spec, steps, fh, t0 = active[slot]
+                proc, group, steps, fh, t0 = active[slot]
                 rc = proc.poll()
                 if rc is None:
                     continue
                 fh.close()
                 del active[slot]
                 what = steps[0][0]
-                finish_step(spec, what, rc)
-                if what == "train":
-                    spec.finished, spec.seconds = now(), round(time.monotonic() - t0, 1)
-                rest = steps[1:] if (what != "train" or spec.state == "done") else []
+                if refused_stack(group, what, rc):
+                    manifest.save()
+                    free.append(slot)
+                    continue
+                for spec in group:
+                    finish_step(spec, what, rc)
+                    if what == "train":
+                        spec.finished, spec.seconds = now(), round(time.monotonic() - t0, 1)
                 manifest.save()
                 if on_change:
-                    on_change(spec)
-                if rest:
-                    start(slot, spec, rest)
-                else:
-                    free.append(slot)
+                    for spec in group:
+                        on_change(spec)
+                spec = group[0]
+                if len(group) == 1 and (what != "train" or spec.state == "done") and steps[1:]:
+                    start(slot, group, steps[1:])
+                    continue
+                if len(group) > 1:  # each seed's evaluations, as runs of their own
+                    todo.extend(
+                        ([s], commands(s)) for s in group if s.state == "done" and commands(s)
+                    )
+                free.append(slot)
     except KeyboardInterrupt:
         for proc, *_ in active.values():
             proc.send_signal(signal.SIGTERM)
-        for proc, spec, _, fh, _ in active.values():
+        for proc, group, _, fh, _ in active.values():
             try:
                 proc.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 proc.kill()
             fh.close()
-            spec.state = spec.files_state()
+            for spec in group:
+                spec.state = spec.files_state()
         manifest.save()
         raise
     return manifest

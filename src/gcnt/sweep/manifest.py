@@ -1,5 +1,6 @@
 """``<sweep>/manifest.json`` (:class:`Manifest`), written atomically with paths inside the sweep
-stored relative to it, and the sweep's lock (:class:`SweepLock`: one ``gcnt sweep`` per sweep)."""
+stored relative to it, with the code, packages and command of each session that ran the sweep
+(``provenance``), and the sweep's lock (:class:`SweepLock`: one ``gcnt sweep`` per sweep)."""
 
 from __future__ import annotations
 
@@ -61,6 +62,16 @@ class Manifest:
         for r in runs:
             _relocate(r, lambda p: _here(p, here, Path(was) if was else None))
         return cls(sweep_dir, runs, data)
+
+    def record_session(self) -> None:
+        """Add this process's session (code, packages, machine, command:
+        :func:`gcnt.provenance.collect`) to the manifest's ``provenance`` (saved with it)."""
+        from gcnt import provenance
+
+        kept = self.meta.get("provenance")
+        sessions = kept.get("sessions") if isinstance(kept, dict) else None
+        sessions = sessions if isinstance(sessions, list) else []
+        self.meta["provenance"] = {"sessions": [*sessions, provenance.collect()]}
 
     def merge(self, runs: list[RunSpec]) -> None:
         """Add new runs; a run already listed keeps its state, and takes the new evaluations."""

@@ -14,8 +14,15 @@ humanoid    Δx/dt + 1 − 1e-3·Σa²           0.4 < z < 2.1 and −1 < pitch 
 cheetah     Δx/dt − 0.1·Σa²                never terminates                                 qpos + U(±0.1), qvel + N(0, 0.1²)
 =========== ============================== ================================================ ==========================================
 
-x, z and pitch are the qpos of the torso's root joints (slide x, slide z, hinge y), s is
-(qpos, qvel). The size-dependent bounds come from the body count in the robot's name
+x is the qpos of the torso's root slide-x joint and s is (qpos, qvel). z and pitch are the torso's
+height and tilt as SMPENV's files write them: their root slide-z joint starts at its ref, the
+torso's start height (1.25; 1.75 for hopper_5), their hinge-y joint at 0, and z and pitch are
+their qpos. Other files write other refs (dm_control's slide-z joints start at 0, the torso's
+height being in its body's position), so the rules read z as the SMPENV start height plus the
+slide-z joint's rise since its ref, and pitch as the hinge-y joint's turn since its ref (qpos −
+qpos0): every file is allowed the same fall, rise and tilt from the pose it is written in as the
+SMPENV robot of its family and size, and SMPENV's own files read exactly their qpos. The
+size-dependent bounds come from the body count in the robot's name
 (``walker_4_main`` → 4, ``hopper_5`` → 5); a name without a number falls back to the robot's limb
 count. dt is the control period (frame_skip × timestep: 0.008 s for walker, hopper and humanoid,
 0.04 s for cheetah). Everything here is per robot; the env applies the rules of each sub-env right
@@ -43,6 +50,9 @@ FRAME_SKIP = 4
 _WALKER_Z_SHIFT = {2: 0.26, 3: 0.26, 4: 0.136}
 _HOPPER_MIN_Z = {3: 0.45, 4: 0.6, 5: 0.95}
 _HOPPER_DEFAULT_MIN_Z = 0.7  # gym's hopper, for a hand-made hopper of another size
+#: The torso's start height (root slide-z ref) in SMPENV's files: 1.25, and 1.75 for hopper_5.
+_START_Z = 1.25
+_HOPPER_START_Z = {5: 1.75}
 
 
 @dataclass(frozen=True)
@@ -57,6 +67,7 @@ class FamilyRules:
     pitch_max: float = math.inf  # ... and |pitch| < pitch_max
     state_check: bool = False  # ... and (hopper) s finite and |s[2:]| < state_max
     state_max: float = 100.0
+    start_z: float = _START_Z  # z at the start pose (see the module doc)
     qpos_noise: float = 0.005  # U(±qpos_noise) on every qpos
     qvel_noise: float = 0.005  # U(±qvel_noise), or N(0, qvel_noise²) if qvel_noise_normal
     qvel_noise_normal: bool = False
@@ -105,7 +116,10 @@ def task_rules(robot: Robot) -> FamilyRules:
                 _HOPPER_DEFAULT_MIN_Z,
             )
         z_low = _HOPPER_MIN_Z.get(n, _HOPPER_DEFAULT_MIN_Z)
-        return FamilyRules(fam, 1.0, 1e-3, z_low=z_low, pitch_max=1.0, state_check=True)
+        start_z = _HOPPER_START_Z.get(n, _START_Z)
+        return FamilyRules(
+            fam, 1.0, 1e-3, z_low=z_low, pitch_max=1.0, state_check=True, start_z=start_z
+        )
     if fam == "humanoid":
         return FamilyRules(fam, 1.0, 1e-3, z_low=0.4, z_high=2.1, pitch_max=1.0)
     if fam == "cheetah":
@@ -169,15 +183,30 @@ class PlanarRootRules(TaskRules):
 
     Start: every joint at its ref (``qpos0``) plus the family's reset noise. Reward per control
     step: Δx/dt + healthy reward − ctrl_cost·Σa², x being the root slide-x qpos; the episode
-    terminates when the family's healthy test fails (see :func:`task_rules`).
+    terminates when the family's healthy test fails (see :func:`task_rules`), which reads the
+    height z = slide-z qpos + ``z_offset`` (the family's start height minus the joint's ref: 0 for
+    SMPENV's files, 1.25 for a walker file whose joint starts at 0) and the tilt pitch = hinge-y
+    qpos − ``pitch_ref`` (see the module doc).
     """
 
-    __slots__ = ("family", "inv_dt", "qpos", "qvel", "rest", "root", "x_prev")
+    __slots__ = (
+        "family",
+        "inv_dt",
+        "pitch_ref",
+        "qpos",
+        "qvel",
+        "rest",
+        "root",
+        "x_prev",
+        "z_offset",
+    )
 
     def __init__(self, robot: Robot, model: mujoco.MjModel, dt: float):
         self.family = task_rules(robot)
         self.root = root_joints(robot, model)
         self.inv_dt = 1.0 / dt
+        self.z_offset = self.family.start_z - float(model.qpos0[self.root.z])
+        self.pitch_ref = float(model.qpos0[self.root.pitch])
         self.x_prev = 0.0
         # qpos addresses of s[2:] (all but root x and z), for the hopper's state test
         self.rest = np.setdiff1d(np.arange(model.nq), [self.root.x, self.root.z])
@@ -198,11 +227,11 @@ class PlanarRootRules(TaskRules):
         if q is None:
             self.begin(data)
             q = self.qpos
-        x = float(q[root.x])
+        x, z, pitch = float(q[root.x]), q[root.z] + self.z_offset, q[root.pitch] - self.pitch_ref
         if rules.state_check:
-            ok = rules.healthy(q[root.z], q[root.pitch], q[self.rest], self.qvel)
+            ok = rules.healthy(z, pitch, q[self.rest], self.qvel)
         else:
-            ok = rules.healthy(q[root.z], q[root.pitch])
+            ok = rules.healthy(z, pitch)
         reward = (
             (x - self.x_prev) * self.inv_dt + rules.healthy_reward - rules.ctrl_cost * action_sq
         )
