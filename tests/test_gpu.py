@@ -128,3 +128,23 @@ def test_ppo_method_on_cuda(capsys, tmp_path, method):
     path = tmp_path / "ppo.yaml"
     path.write_text(yaml.safe_dump(d))
     _train_resume_eval(capsys, tmp_path, path, [], frames=(320, 400))
+
+
+@pytest.mark.parametrize("switch", list(SWITCHES))
+def test_stacked_seeds_on_cuda(capsys, tmp_path, switch):
+    """``gcnt train --seeds 0,1`` (one vmapped update for both seeds) on cuda under each switch:
+    both runs finish with CPU checkpoints and evaluate, or one error line before any run."""
+    recipe = tiny_td3_recipe(tmp_path / "tiny.yaml")
+    base = tmp_path / "seeds"
+    argv = ["train", str(recipe), "--seeds", "0,1", "device=cuda", f"run_dir={base}"]
+    code = gcnt([*argv, "td3.schedule=mixed", *SWITCHES[switch]])
+    err = capsys.readouterr().err
+    if code == 2:
+        assert len([x for x in err.splitlines() if x.startswith("gcnt ")]) == 1, err
+        assert not base.exists()
+        return
+    assert code == 0, err
+    for seed in (0, 1):
+        run = base / f"seed{seed}"
+        assert _all_cpu(run / "checkpoints" / "last.pt")
+        assert gcnt(["eval", str(run), "--robots", "train", "--episodes", "1"]) == 0
