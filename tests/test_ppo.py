@@ -314,7 +314,13 @@ def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
     from gcnt.morphology.catalogues import resolve_robots
     from gcnt.rl.loop import train
 
+    from gcnt.morphology.unimal.imported import DEFAULT_NAME
+
     own = load_recipe(path)
+    if any(str(spec).startswith(f"{DEFAULT_NAME}:") for spec in own.env.robots):
+        # the paper's robots cannot ship: tests/test_unimal_import.py builds this recipe's env
+        # from an imported set it makes
+        pytest.skip(f"{path.name} trains the imported {DEFAULT_NAME} robots")
     single = own.network.name == "sr"
     names = [r.name for r in resolve_robots(own.env.robots)][: 1 if single else 2]
     recipe = load_recipe(

@@ -188,7 +188,10 @@ def test_the_world_replaces_the_files_floor_lights_and_scales_each_control_range
     robot = load_robot(write(tmp_path, tripod(ctrl="0 2")))
     model = world_model(robot, "ft")
     world_geoms = [model.geom(g).name for g in range(model.ngeom) if model.geom_bodyid[g] == 0]
-    assert world_geoms == ["floor"] and model.nlight == 0
+    # the file's light ("sun") went with its world; the world brings its own
+    assert world_geoms == ["floor"] and [model.light(i).name for i in range(model.nlight)] == [
+        "world_light"
+    ]
     floor = model.geom("floor").id
     # the file's <default><geom conaffinity="0"/> does not reach the world's floor
     assert model.geom_contype[floor] == 1 and model.geom_conaffinity[floor] == 1

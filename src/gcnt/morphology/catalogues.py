@@ -142,12 +142,14 @@ IMPORTED_INDEX = "catalogue.yaml"
 
 
 def imported_catalogues() -> dict[str, Path]:
-    """Catalogues imported into the morphologies folder: name -> folder."""
+    """Catalogues imported into the morphologies folder: name -> folder (hidden folders, an
+    import under way, left out)."""
     try:
         root = morphologies_dir()
     except FileNotFoundError:
         return {}
-    return {p.parent.name: p.parent for p in sorted(root.glob(f"*/{IMPORTED_INDEX}"))}
+    found = sorted(root.glob(f"*/{IMPORTED_INDEX}"))
+    return {p.parent.name: p.parent for p in found if not p.parent.name.startswith(".")}
 
 
 def catalogue_names() -> list[str]:
@@ -345,6 +347,14 @@ def __getattr__(name: str) -> Any:
 def _benchmark_names(spec: str, benchmarks: dict[str, dict[str, list[str]]]) -> list[str]:
     bench_name, _, split = spec.partition(":")
     if bench_name not in benchmarks:
+        from gcnt.morphology.unimal.imported import DEFAULT_NAME
+
+        if bench_name == DEFAULT_NAME:  # the paper's robots, not imported on this machine
+            raise UnknownRobotError(
+                f"{spec!r}: the benchmark {DEFAULT_NAME} (the paper's UNIMAL-100 robots) is not "
+                "imported here; download MetaMorph's unimals_100.zip (the data link of its README) "
+                "and run gcnt import-unimal unimals_100.zip"
+            )
         raise UnknownRobotError(
             f"unknown benchmark {bench_name!r} in {spec!r}{did_you_mean(bench_name, benchmarks)} "
             f"(known: {', '.join(benchmarks)})"

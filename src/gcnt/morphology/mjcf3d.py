@@ -12,7 +12,7 @@ Robot names:
 The files are read where their packages installed them; none is copied into gcnt. Any other 3-D
 robot file (one free-jointed root body) loads by path as an ``mjcf3d`` robot.
 
-``morphologies/mjcf3d.yaml`` holds the benchmark ``Mjcf3d``: a few converted UNIMAL training
+``morphologies/mjcf3d.yaml`` holds the benchmark ``MJCF3D``: a few converted UNIMAL training
 robots and dm_control's humanoid to train on, converted UNIMAL test robots to evaluate zero-shot
 (gymnasium's robots are left out of the splits because gymnasium is optional).
 """
@@ -29,7 +29,7 @@ from gcnt.morphology.robot import Robot, RobotFileError, load_robot
 CATALOGUE = "mjcf3d"
 FAMILY = "mjcf3d"
 SPLIT_FILE = "mjcf3d.yaml"
-BENCHMARK = "Mjcf3d"
+BENCHMARK = "MJCF3D"
 UNIMAL_PREFIX = "unimal3d_"
 #: robots of installed packages: name -> (package, path of the file inside the package)
 PACKAGE_ROBOTS: dict[str, tuple[str, str]] = {
@@ -91,9 +91,10 @@ def split_yaml() -> str:
     train = [f"{UNIMAL_PREFIX}{s:04d}" for s in TRAIN_SEEDS] + ["dmc_humanoid"]
     test = [f"{UNIMAL_PREFIX}{s:04d}" for s in TEST_SEEDS]
     lines = [
-        "# The Mjcf3d benchmark: general 3-D robots (gcnt.morphology.mjcf3d). unimal3d_<seed> is",
-        "# morphologies/unimal/unimal_<seed>.xml read as a general 3-D robot; dmc_humanoid is",
-        "# dm_control's suite humanoid.xml. Written by `gcnt robots --rebuild`.",
+        f"# The {BENCHMARK} benchmark (env.benchmark: mjcf3d): general 3-D robots",
+        "# (gcnt.morphology.mjcf3d). unimal3d_<seed> is morphologies/unimal/unimal_<seed>.xml read",
+        "# as a general 3-D robot; dmc_humanoid is dm_control's suite humanoid.xml. Written by",
+        "# `gcnt robots --rebuild`.",
         "",
         f"{BENCHMARK}:",
         "  train:",

@@ -20,7 +20,8 @@ lowest point is 0.2 m above a flat floor); on MT and Obstacles also when the tor
 
 :func:`world_model` compiles a robot file together with its world: the world's assets and geoms
 go into the robot's ``<asset>`` and ``<worldbody>`` (geoms of the world body, so the robot's body,
-joint and actuator ids do not change), plus a ``track`` camera on the torso for videos. This runs
+joint and actuator ids do not change), plus a ``track`` camera on the torso and, where the robot
+file has no light at world level, the light UNIMAL's files carry (:data:`WORLD_LIGHT`). This runs
 once per sub-env model at env construction; terrain changes later edit the compiled model in
 place (no recompiling).
 """
@@ -193,6 +194,18 @@ def _world_parts(world: str) -> tuple[list[ET.Element], list[ET.Element]]:
     return assets, geoms
 
 
+#: the light of a world whose robot file brings none at world level (a general 3-D robot's own
+#: lights go with its world): the light UNIMAL's robot files carry, straight down from above
+WORLD_LIGHT = {
+    "name": "world_light",
+    "directional": "true",
+    "pos": "0 0 8",
+    "dir": "0 0 -1",
+    "diffuse": "1 1 1",
+    "specular": "0.1 0.1 0.1",
+}
+
+
 def world_xml(robot: Robot, world: str) -> str:
     """The robot's MJCF with ``world`` added (see the module doc)."""
     try:
@@ -209,6 +222,8 @@ def world_xml(robot: Robot, world: str) -> str:
         raise RobotFileError(f"{robot.source}: robot {robot.name!r} has no <worldbody>")
     for i, g in enumerate(geoms):
         worldbody.insert(i, g)
+    if worldbody.find("light") is None:  # the file brings none (or its world was dropped)
+        worldbody.insert(0, ET.Element("light", WORLD_LIGHT))
     torso = next((b for b in worldbody.iter("body") if b.get("name") == robot.body_names[0]), None)
     if torso is None:
         raise RobotFileError(

@@ -2,7 +2,9 @@
 
 Modules: ``space`` (numbers and the genotype), ``mjcf`` (the file layout and the validity check),
 ``generate`` (random growth), ``mutate`` (DERL's operators and the variant sets), ``catalogue``
-(the checked-in robots, their splits and the catalogue record), ``stats`` (set statistics).
+(the checked-in robots, their splits and the catalogue record), ``stats`` (set statistics),
+``imported`` (the paper's evolved robots: MetaMorph's published files as a catalogue,
+``gcnt import-unimal``).
 """
 
 from gcnt.morphology.unimal.generate import generate

@@ -6,6 +6,9 @@
 any training robot), and the zero-shot variant splits ``variants-dynamics`` and
 ``variants-kinematics`` of the training robots.
 
+These are generated, not the paper's evolved UNIMAL-100; ``gcnt import-unimal`` makes MetaMorph's
+published files of those a catalogue of their own (``gcnt.morphology.unimal.imported``).
+
 Variants are not checked in: a variant name ``unimal_<seed>-<suffix>`` says how to make it (the
 generator's robot of that seed, changed by the operator of the suffix, drawn from a stream seeded
 by the name), so it is built on first use and cached for the process.
@@ -125,15 +128,19 @@ def robot_names() -> list[str]:
     return names + [v for n in names for kind in VARIANTS for v in variant_names(n, kind)]
 
 
-def load_unimal(path: str | Path, catalogue: str = "unimal") -> Robot:
-    """A UNIMAL robot file (MetaMorph's or gcnt's); RobotFileError if it is another kind."""
-    robot = load_robot(path, catalogue)
+def as_unimal(robot: Robot, source: str | Path) -> Robot:
+    """``robot`` if it is a UNIMAL robot; else a RobotFileError naming ``source``."""
     if robot.family != "unimal":
         raise RobotFileError(
-            f"{path}: not a UNIMAL robot (its family is {robot.family!r}; a UNIMAL file has a "
+            f"{source}: not a UNIMAL robot (its family is {robot.family!r}; a UNIMAL file has a "
             "free-jointed torso body 'torso/0' or model name 'unimal')"
         )
     return robot
+
+
+def load_unimal(path: str | Path, catalogue: str = "unimal") -> Robot:
+    """A UNIMAL robot file (MetaMorph's or gcnt's); RobotFileError if it is another kind."""
+    return as_unimal(load_robot(path, catalogue), path)
 
 
 def variant_robot(name: str) -> Robot:

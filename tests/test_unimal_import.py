@@ -1,0 +1,204 @@
+"""``gcnt import-unimal``: MetaMorph's published UNIMAL-100 layout (a folder, or the zip as
+downloaded) becomes a catalogue with its splits that recipes, commands and envs take; bad sets
+are refused in one line naming the culprit, leaving nothing behind. The sets here are tiny fakes
+in MetaMorph's layout, made from gcnt's own UNIMAL generator."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from cli_helpers import ROOT, error_line
+from tensordict import TensorDict
+
+from gcnt.cli import main as gcnt
+from gcnt.morphology.catalogues import (
+    MORPHOLOGIES_ENV,
+    load_benchmarks,
+    morphologies_dir,
+    refresh_catalogues,
+    resolve_robots,
+)
+from gcnt.morphology.unimal import build_mjcf, generate, make_variant
+from gcnt.morphology.unimal.catalogue import seed_of
+from gcnt.morphology.unimal.imported import import_unimals
+
+#: the fake set: MetaMorph's folder -> {robot name (named as MetaMorph names them): the robot of
+#: gcnt's generator (or its variant) written under that name}
+MADE_AS = {
+    "train": {
+        "floor-1409-0-3-01-15-56-55": "unimal_0900",
+        "floor-5506-10-6-01-15-48-35": "unimal_0901",
+    },
+    "test": {"mvt-5506-12-6-17-12-20-06": "unimal_0902"},
+    "dynamics": {"floor-1409-0-3-01-15-56-55_damping_3": "unimal_0900-damping1"},
+    "kinematics": {"floor-1409-0-3-01-15-56-55_limb_params_1": "unimal_0900-length1"},
+}
+FAKE = {folder: list(robots) for folder, robots in MADE_AS.items()}
+SPLITS = {
+    "train": FAKE["train"],
+    "test": FAKE["test"],
+    "variants-dynamics": FAKE["dynamics"],
+    "variants-kinematics": FAKE["kinematics"],
+}
+
+
+def _robot_xml(made_as: str) -> str:
+    """The MJCF of gcnt's ``unimal_<seed>`` or of its variant ``unimal_<seed>-<suffix>``."""
+    base, _, suffix = made_as.partition("-")
+    robot = generate(seed_of(base))
+    return build_mjcf(make_variant(robot, made_as) if suffix else robot)
+
+
+@pytest.fixture(scope="module")
+def unimals(tmp_path_factory) -> Path:
+    """``<tmp>/unimals_100/`` in MetaMorph's layout (metadata and pickles too)."""
+    root = tmp_path_factory.mktemp("download") / "unimals_100"
+    for folder, names in MADE_AS.items():
+        for sub in ("xml", "metadata", "unimal_init"):
+            (root / folder / sub).mkdir(parents=True)
+        for name, made_as in names.items():
+            (root / folder / "xml" / f"{name}.xml").write_text(_robot_xml(made_as))
+            (root / folder / "metadata" / f"{name}.json").write_text("{}")
+            (root / folder / "unimal_init" / f"{name}.pkl").write_bytes(b"not read")
+    return root
+
+
+def _zip(folder: Path, path: Path, skip: str | None = None, extra=()) -> Path:
+    """``folder`` zipped as MetaMorph's archive is (its name as the top folder)."""
+    with zipfile.ZipFile(path, "w") as z:
+        for f in sorted(folder.rglob("*")):
+            rel = f.relative_to(folder.parent).as_posix()
+            if f.is_file() and (skip is None or f"/{skip}/" not in rel):
+                z.write(f, rel)
+        for name, data in extra:
+            z.writestr(name, data)
+    return path
+
+
+@pytest.fixture
+def morph(tmp_path, monkeypatch) -> Path:
+    """A morphologies folder of its own (the checked-in files linked in), read by gcnt."""
+    folder = tmp_path / "morphologies"
+    folder.mkdir()
+    for entry in morphologies_dir().iterdir():
+        (folder / entry.name).symlink_to(entry)
+    monkeypatch.setenv(MORPHOLOGIES_ENV, str(folder))
+    refresh_catalogues()
+    yield folder
+    refresh_catalogues()
+
+
+def test_the_zip_as_downloaded_becomes_a_benchmark(unimals, morph, tmp_path, capsys):
+    archive = _zip(unimals, tmp_path / "unimals_100.zip")
+    assert gcnt(["import-unimal", str(archive)]) == 0
+    out = capsys.readouterr().out
+    assert "imported 5 UNIMAL robots" in out and "Unimal100:variants-dynamics" in out
+    folder = morph / "Unimal100"
+    assert load_benchmarks()["Unimal100"] == SPLITS
+    for split, names in FAKE.items():  # MetaMorph's files, byte for byte, in its layout
+        for name in names:
+            copied = folder / split / "xml" / f"{name}.xml"
+            assert copied.read_bytes() == (unimals / split / "xml" / f"{name}.xml").read_bytes()
+    assert not list(folder.rglob("*.pkl")) and not list(folder.rglob("*.json"))
+    assert (folder / ".gitignore").read_text().splitlines()[-1] == "*"
+    robots = resolve_robots(["Unimal100:test", "floor-5506-10-6-01-15-48-35"])
+    assert [r.name for r in robots] == [*FAKE["test"], FAKE["train"][1]]
+    assert {(r.catalogue, r.family) for r in robots} == {("unimal", "unimal")}
+
+    assert gcnt(["robots"]) == 0  # listed with its splits and next to gcnt's generated set
+    listing = capsys.readouterr().out
+    assert "Unimal100:variants-kinematics" in listing and "Unimal100:train (2)" in listing
+
+
+def test_a_folder_feeds_a_unimal_recipe_and_its_env(unimals, morph):
+    from gcnt.envs.benchmark import get_benchmark
+    from gcnt.recipes import load_recipe
+    from gcnt.rl.factories import train_robots
+
+    imported = import_unimals(unimals.parent)  # the folder the archive was unpacked in
+    assert imported.folder == morph / "Unimal100" and imported.splits == SPLITS
+    recipe = load_recipe(ROOT / "recipes/unimal/ft_unimal100.yaml")
+    robots = train_robots(recipe)
+    assert [r.name for r in robots] == FAKE["train"]
+    env = get_benchmark(recipe.env.benchmark).make_env(
+        resolve_robots(recipe.env.test_robots) + robots, seed=0, num_threads=1
+    )
+    td = env.reset()
+    assert td["limbs", "obs"].shape[0] == 3
+    action = torch.zeros(env.action_spec["limbs", "action"].shape)
+    td = env.step(TensorDict({("limbs", "action"): action}, batch_size=[3]))
+    assert np.isfinite(td["next", "reward"].numpy()).all()
+    env.close()
+
+
+def test_another_name_and_out_folder(unimals, morph, tmp_path, capsys):
+    other = tmp_path / "elsewhere"
+    assert gcnt(["import-unimal", str(unimals), "--name", "Paper", "--out", str(other)]) == 0
+    assert f"GCNT_MORPHOLOGIES={other}" in capsys.readouterr().out
+    assert (other / "Paper" / "catalogue.yaml").is_file()
+    assert "Paper" not in load_benchmarks()  # gcnt reads its own morphologies folder only
+
+
+def _set_without(unimals: Path, tmp_path: Path, folder: str) -> Path:
+    import shutil
+
+    copy = tmp_path / "partial" / "unimals_100"
+    shutil.copytree(unimals, copy)
+    shutil.rmtree(copy / folder)
+    return copy
+
+
+def _bad_file(unimals: Path, tmp_path: Path, name: str, text: str) -> Path:
+    import shutil
+
+    copy = tmp_path / f"with-{name}" / "unimals_100"
+    shutil.copytree(unimals, copy)
+    (copy / "train" / "xml" / name).write_text(text)
+    return copy
+
+
+def test_refusals_name_the_culprit_and_leave_nothing(unimals, morph, tmp_path, capsys):
+    walker = (morphologies_dir() / "smpenv" / "walker_2_main.xml").read_text()
+    cases = [
+        (_set_without(unimals, tmp_path, "test"), "no test/xml/ folder"),
+        (_zip(unimals, tmp_path / "no_test.zip", skip="test"), "no unimals_100/test/xml/ files"),
+        (_bad_file(unimals, tmp_path, "broken.xml", "<mujoco><worldbody>"), "broken.xml"),
+        (
+            _zip(unimals, tmp_path / "bad.zip", extra=[("unimals_100/test/xml/x.xml", "<a")]),
+            "bad.zip:unimals_100/test/xml/x.xml",
+        ),
+        (_bad_file(unimals, tmp_path, "walker.xml", walker), "walker.xml: not a UNIMAL robot"),
+        (tmp_path / "missing.zip", "missing.zip: does not exist"),
+    ]
+    for source, expected in cases:
+        line = error_line(capsys, ["import-unimal", str(source)])
+        assert expected in line, line
+        assert sorted(p.name for p in morph.iterdir() if not p.is_symlink()) == []
+    taken = _bad_file(unimals, tmp_path, "unimal_0000.xml", _robot_xml("unimal_0903"))
+    line = error_line(capsys, ["import-unimal", str(taken)])
+    assert "unimal_0000.xml: robot 'unimal_0000' is already a robot of catalogue 'unimal'" in line
+    line = error_line(capsys, ["import-unimal", str(unimals), "--name", "unimal"])
+    assert "'unimal' is already a catalogue or benchmark" in line
+    line = error_line(capsys, ["import-unimal", str(unimals), "--name", "walker++"])
+    assert "'Walker++' is already a catalogue or benchmark" in line
+    assert gcnt(["import-unimal", str(unimals)]) == 0
+    line = error_line(capsys, ["import-unimal", str(unimals)])
+    assert f"{morph / 'Unimal100'}: already imported; remove the folder" in line
+
+
+def test_gcnt_robots_says_which_unimal_robots_it_lists(capsys):
+    assert gcnt(["robots"]) == 0
+    out = capsys.readouterr().out
+    assert "not the paper's\nevolved UNIMAL-100" in out and "gcnt import-unimal" in out
+    assert "MJCF3D:train" in out and "Mjcf3d" not in out  # the benchmark's display name
+
+
+def test_the_paper_robots_before_their_import_name_the_command(capsys):
+    from cli_helpers import error_line
+
+    line = error_line(capsys, ["robots", "Unimal100:train"])
+    assert "not imported here" in line and "gcnt import-unimal unimals_100.zip" in line
