@@ -312,9 +312,8 @@ def test_every_ppo_recipe_trains_a_few_steps(path, tmp_path):
     """Each PPO recipe (its world, height map and method) on two robots (SR: one, since its MLP
     is one network per robot), a few steps."""
     from gcnt.morphology.catalogues import resolve_robots
-    from gcnt.rl.loop import train
-
     from gcnt.morphology.unimal.imported import DEFAULT_NAME
+    from gcnt.rl.loop import train
 
     own = load_recipe(path)
     if any(str(spec).startswith(f"{DEFAULT_NAME}:") for spec in own.env.robots):
