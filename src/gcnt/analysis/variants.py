@@ -122,6 +122,15 @@ def aggregate(scores: Sequence[float], kind: str = "mean") -> float:
     raise ValueError(f"unknown statistic {kind!r} (known: {', '.join(STATISTICS)})")
 
 
+def _strata(
+    per_seed: Sequence[float], strata: Sequence[str] | None
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The per-seed values (float64) and their values per stratum, in first-seen order."""
+    x = np.asarray(per_seed, dtype=np.float64)
+    groups = np.asarray(strata if strata is not None else [""] * len(x))
+    return x, [x[groups == g] for g in dict.fromkeys(groups.tolist())]
+
+
 def bootstrap_ci(
     per_seed: Sequence[float],
     strata: Sequence[str] | None = None,
@@ -133,12 +142,10 @@ def bootstrap_ci(
     bootstrap interval (the seeds of each stratum, a task, resampled with replacement, the mean
     of all recomputed; ``reps`` resamples drawn from ``seed``). No interval (nan) when no stratum
     has two seeds."""
-    x = np.asarray(per_seed, dtype=np.float64)
+    x, members = _strata(per_seed, strata)
     if x.size == 0:
         return math.nan, math.nan, math.nan
     point = float(x.mean())
-    groups = np.asarray(strata if strata is not None else [""] * len(x))
-    members = [x[groups == g] for g in dict.fromkeys(groups.tolist())]
     if all(len(v) < 2 for v in members):
         return point, math.nan, math.nan
     rng = np.random.default_rng(seed)
@@ -157,11 +164,9 @@ def seed_range(
     """(point, low, high): the mean of the per-seed aggregates and the range the stratified mean
     spans (each stratum's lowest seed, and its highest, in the mean; one stratum: the lowest and
     the highest seed). No interval (nan) when no stratum has two seeds."""
-    x = np.asarray(per_seed, dtype=np.float64)
+    x, members = _strata(per_seed, strata)
     if x.size == 0:
         return math.nan, math.nan, math.nan
-    groups = np.asarray(strata if strata is not None else [""] * len(x))
-    members = [x[groups == g] for g in dict.fromkeys(groups.tolist())]
     if all(len(v) < 2 for v in members):
         return float(x.mean()), math.nan, math.nan
     low = sum(len(v) * v.min() for v in members) / len(x)

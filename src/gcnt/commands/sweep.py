@@ -223,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
         if args.status:
             print(manifest.table())
             return 0
-        manifest.record_session()  # the code and command of this session
+        manifest.record_session()  # the code and command now running the sweep
         manifest.save()
         if args.dry_run:
             print(manifest.table())

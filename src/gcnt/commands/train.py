@@ -109,7 +109,7 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
         prepared = prepare(recipe, resume=resume)
         held.enter_context(run_lock(run_dir.path))
         if not args.resume:
-            run_dir.create(recipe)  # with this session's provenance
+            run_dir.create(recipe)  # with the provenance of the code now running
         elif not resume:  # no checkpoint: trained again from step 0 (a resumed one: in train)
             run_dir.record_session()
         if args.resume and not resume:

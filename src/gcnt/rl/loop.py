@@ -160,7 +160,7 @@ def train(
     start, total = env_steps, recipe.collector.total_frames
     if not resume or env_steps < total:  # a finished run's recipe is left as it was
         run.save_recipe(recipe)  # after the checkpoint was found to fit it
-    if resume and env_steps < total:  # this session's code continues the run
+    if resume and env_steps < total:  # the code now running continues the run: recorded
         run.record_session()
     if resume:
         env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume

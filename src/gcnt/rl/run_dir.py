@@ -95,8 +95,8 @@ class RunDir:
         return self.path / "checkpoints" / "buffers"
 
     def create(self, recipe: Recipe) -> None:
-        """Make the directory and write the recipe and this session's provenance; an existing
-        run is never overwritten."""
+        """Make the directory and write the recipe and the provenance of the process creating
+        it; an existing run is never overwritten."""
         self.check_new()
         try:
             (self.path / "checkpoints").mkdir(parents=True, exist_ok=True)
@@ -109,8 +109,8 @@ class RunDir:
             ) from None
 
     def record_session(self) -> None:
-        """Add this session (code, packages, machine, command) to ``provenance.json``: a
-        resumed run, so that each session's code is known."""
+        """Add the running process (code, packages, machine, command) to ``provenance.json`` as
+        a new session: a resumed run, so that the code of each session is known."""
         with _writing(self.path / provenance.PROVENANCE_FILE, "the provenance"):
             provenance.add_session(self.path)
 
@@ -397,7 +397,7 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
     this process log at the same time (each W&B run is then created beside the others).
 
     A W&B run is tagged ``seed:N`` (and ``logger.tags``); its config is the recipe, the method
-    and the code of this session (gcnt version, commit, uncommitted changes). A resumed run
+    and the code of the running process (gcnt version, commit, uncommitted changes). A resumed run
     continues the same W&B run (:func:`wandb_id`), but W&B writes each session to a folder of
     its own (``<run>/wandb/offline-run-<start time>-<id>``, whatever ``resume`` says); ``wandb
     sync`` uploads a run's folders into that one W&B run, in the order they were started."""
@@ -418,6 +418,9 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
     return WandbLogger(
         exp_name=name,
         offline=cfg.mode == "offline",
+        # also to wandb.init itself: W&B keeps the settings of its first use in a process, so
+        # torchrl's WANDB_MODE variable alone does not make a later run offline
+        mode=cfg.mode,
         save_dir=str(run.path),
         project=project,
         group=group,
@@ -430,7 +433,7 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
 
 
 def wandb_id(run: RunDir, name: str) -> str:
-    """The W&B run id of ``run``: the one its earlier sessions used (W&B names each session's
+    """The W&B run id of ``run``: the one its earlier trainings used (W&B names each session's
     ``run-<id>.wandb`` file after it), so that a resumed run continues the same W&B run even
     after its directory was moved or its ``logger.name`` changed; for a new run, ``name`` and
     a hash of the directory's path."""
