@@ -177,8 +177,11 @@ def test_curve_axes_hold_every_band_and_a_single_point_has_an_error_bar() -> Non
         # swat's single point and smp's two points beside its gap (a band cannot show them)
         assert sorted(len(c.lines[2][0].get_segments()) for c in errorbars) == [1, 2]
         assert ax.get_title() == "Walker++"
-        legend = ax.get_legend()
+        (legend,) = fig.legends  # one, beside the panels, never over the data
         assert legend.get_title().get_text() == "mean ± 1 s.e. (n = 3 seeds)"
+        fig.canvas.draw()
+        box, panel = legend.get_window_extent(), ax.get_window_extent()
+        assert box.x0 >= panel.x1
         assert [t.get_text() for t in legend.get_texts()] == [
             "GCNT (n = 3)", "SWAT (n = 3)", "SMP (n = 3)"
         ]  # fmt: skip
@@ -186,10 +189,22 @@ def test_curve_axes_hold_every_band_and_a_single_point_has_an_error_bar() -> Non
         plt.close(fig)
     one = curves.curves_figure(_rows("gcnt", [1, 2], [1.0, 2.0], [math.nan] * 2, 1))
     try:
-        title = one.axes[0].get_legend().get_title().get_text()
+        title = one.legends[0].get_title().get_text()
         assert title == "mean ± 1 s.e. (n = 1 seed); n = 1: the value alone, no interval"
     finally:
         plt.close(one)
+
+
+def test_methods_evaluated_at_one_step_stand_side_by_side() -> None:
+    rows = [*_rows("gcnt", [500], [8.0], [1.0], 3), *_rows("swat", [500], [8.2], [1.0], 3)]
+    fig = curves.curves_figure(rows)
+    try:
+        (ax,) = fig.axes
+        xs = [line.get_xdata()[0] for line in ax.lines if len(line.get_xdata())]
+        assert len(set(xs)) == 2 and min(xs) < 500 < max(xs)  # no point hides another
+        assert list(ax.get_xticks()) == [500]  # the step they were evaluated at
+    finally:
+        plt.close(fig)
 
 
 # ----------------------------------------------------------------------------- intervals

@@ -299,6 +299,8 @@ def curves_figure(
     steps). The legend names the interval and each method's number of seeds; each panel's y
     range holds every band. Tasks and methods by their display names; size, fonts and title as
     ``style`` says."""
+    from matplotlib.lines import Line2D
+
     from gcnt.analysis.intervals import stderr_text
     from gcnt.analysis.plotting import padded_limits, pyplot
 
@@ -308,6 +310,8 @@ def curves_figure(
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     methods = sorted({r["method"] for r in rows}, key=method_key)
     colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
+    counts: dict[str, list[tuple[int, int]]] = {m: [] for m in methods}  # (seeds, robots)
+    random_line = False
     cols = min(4, len(tasks))
     nrows = -(-len(tasks) // cols)
     with style.context():
@@ -315,21 +319,25 @@ def curves_figure(
             nrows, cols, figsize=style.size((4.6 * cols, 3.6 * nrows)), squeeze=False
         )
         for ax, task in zip(axes.flat, tasks, strict=False):
-            drawn, seeds = [], []
-            for m in methods:
+            drawn = []
+            present = [
+                m for m in methods if any(r["task"] == task and r["method"] == m for r in rows)
+            ]
+            # every method at one step (a single evaluation): side by side, so that no point or
+            # error bar hides another
+            steps = {r["env_steps"] for r in rows if r["task"] == task}
+            dodge = DODGE * max(abs(next(iter(steps))), 1) if len(steps) == 1 else 0.0
+            for j, m in enumerate(present):
                 sel = [r for r in rows if r["task"] == task and r["method"] == m]
-                if not sel:
-                    continue
                 x = np.array([r["env_steps"] for r in sel], dtype=np.float64)
+                x = x + dodge * (j - (len(present) - 1) / 2)
                 y = np.array([r["mean"] for r in sel], dtype=np.float64)
                 e = np.nan_to_num(np.array([r["stderr"] for r in sel], dtype=np.float64))
                 n, k = sel[0]["seeds"], sel[0].get("robots", 1)
-                seeds.append(n)
+                counts[m].append((n, k))
                 full = np.array([r.get("logged", n) >= n for r in sel])
-                per = f" × {k} robots" if k > 1 else ""
-                label = f"{style.name(m)} (n = {n}{per})"
                 c = colours[m]
-                ax.plot(x, y, color=c, label=label)
+                ax.plot(x, y, color=c)
                 ax.fill_between(x, y - e, y + e, color=c, alpha=0.2, linewidth=0)
                 alone = _isolated(y)
                 if alone.any():  # a band needs two points: these get an error bar
@@ -337,14 +345,14 @@ def curves_figure(
                 ax.plot(x[full], y[full], "o", color=c, markersize=3.5)
                 ax.plot(x[~full], y[~full], "o", mfc="none", color=c, markersize=3.5)
                 drawn += [*(y - e), *(y + e)]
-            for i, steps in enumerate((random_until or {}).get(task, [])):
+            for end in (random_until or {}).get(task, []):
                 ax.axvline(
-                    steps,
+                    end,
                     color="0.4",
                     linestyle=":",
                     linewidth=1,
-                    label="end of random actions" if i == 0 else None,
                 )
+                random_line = True
             limits = padded_limits(drawn)
             if limits is not None:
                 ax.set_ylim(*limits)
@@ -352,12 +360,41 @@ def curves_figure(
             ax.set_xlabel("environment steps")
             ax.set_ylabel(ylabel or metric, fontsize="small")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize="small", title=stderr_text(seeds), title_fontsize="small")
+            if dodge:  # one step: its tick alone
+                ax.set_xticks(sorted(steps))
         for ax in axes.flat[len(tasks) :]:
             ax.set_visible(False)
         style.suptitle(fig)
         fig.tight_layout()
+        # one legend beside every panel, never over the data: its seed counts per method (per
+        # panel where they differ); the saved figure grows to hold it
+        handles = [Line2D([], [], color=colours[m], marker="o", markersize=3.5) for m in counts]
+        labels = [f"{style.name(m)} ({_counts_text(c)})" for m, c in counts.items()]
+        if random_line:
+            handles.append(Line2D([], [], color="0.4", linestyle=":", linewidth=1))
+            labels.append("end of random actions")
+        fig.legend(
+            handles,
+            labels,
+            title=stderr_text([n for c in counts.values() for n, _ in c]),
+            fontsize="small",
+            title_fontsize="small",
+            loc="upper left",
+            bbox_to_anchor=(1.0, 1.0),
+            bbox_transform=axes[0, -1].transAxes if nrows == 1 else fig.transFigure,
+        )
     return fig
+
+
+def _counts_text(counts: Sequence[tuple[int, int]]) -> str:
+    """``n = 3`` (seeds), ``n = 3 × 4 robots`` (per-robot runs), ``n = 3 / 2`` where the panels
+    differ."""
+    texts = list(dict.fromkeys(f"{n}{f' × {k} robots' if k > 1 else ''}" for n, k in counts))
+    return "n = " + " / ".join(texts)
+
+
+#: the offset between methods drawn at one step, as a share of that step count
+DODGE = 0.01
 
 
 def _isolated(y: np.ndarray) -> np.ndarray:
