@@ -195,6 +195,22 @@ def test_curve_axes_hold_every_band_and_a_single_point_has_an_error_bar() -> Non
         plt.close(one)
 
 
+def test_each_of_several_random_phase_ends_is_labelled_with_its_step() -> None:
+    rows = _rows("gcnt", [100, 2000, 4000], [1.0, 2.0, 3.0], [0.1] * 3, 2)
+    fig = curves.curves_figure(rows, random_until={"Walkerpp": [300, 1200]})
+    try:
+        (ax,) = fig.axes
+        assert sorted(t.get_text() for t in ax.texts) == ["1,200", "300"]
+        assert [t.get_text() for t in fig.legends[0].get_texts()][-1] == "end of random actions"
+    finally:
+        plt.close(fig)
+    one = curves.curves_figure(rows, random_until={"Walkerpp": [300]})
+    try:
+        assert not one.axes[0].texts  # one line: the legend says what it is
+    finally:
+        plt.close(one)
+
+
 def test_methods_evaluated_at_one_step_stand_side_by_side() -> None:
     rows = [*_rows("gcnt", [500], [8.0], [1.0], 3), *_rows("swat", [500], [8.2], [1.0], 3)]
     fig = curves.curves_figure(rows)

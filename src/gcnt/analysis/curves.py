@@ -345,14 +345,23 @@ def curves_figure(
                 ax.plot(x[full], y[full], "o", color=c, markersize=3.5)
                 ax.plot(x[~full], y[~full], "o", mfc="none", color=c, markersize=3.5)
                 drawn += [*(y - e), *(y + e)]
-            for end in (random_until or {}).get(task, []):
-                ax.axvline(
-                    end,
-                    color="0.4",
-                    linestyle=":",
-                    linewidth=1,
-                )
+            ends = (random_until or {}).get(task, [])
+            for end in ends:
+                ax.axvline(end, color="0.4", linestyle=":", linewidth=1)
                 random_line = True
+                if len(ends) > 1:  # runs of several random phases: each line says its step
+                    ax.annotate(
+                        f"{end:,}",
+                        xy=(end, 1.0),
+                        xycoords=("data", "axes fraction"),
+                        xytext=(-2, -2),
+                        textcoords="offset points",
+                        rotation=90,
+                        ha="right",
+                        va="top",
+                        fontsize="x-small",
+                        color="0.4",
+                    )
             limits = padded_limits(drawn)
             if limits is not None:
                 ax.set_ylim(*limits)
