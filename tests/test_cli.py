@@ -118,12 +118,13 @@ def test_a_misspelt_run_directory_gets_the_real_one(tmp_path, monkeypatch, capsy
         assert "did you mean 'runs/Walkerpp/td3-gcnt/seed0'" in line
     line = error_line(capsys, ["eval", "elsewhere/seed0"])
     assert "elsewhere/seed0 does not exist" in line and "did you mean" not in line
-    # the analysis commands read run or sweep directories the same way (and log their one line)
+    # the analysis commands read run or sweep directories the same way (and say it in one line)
     capsys.readouterr()
     assert gcnt(["curves", "runs/Walker++"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert "runs/Walker++ does not exist; did you mean 'runs/Walkerpp'?" in err
+    assert err.startswith("gcnt curves: error: ")  # the one form of every command's error
 
 
 def test_a_robot_of_another_benchmark_is_one_line(trained, capsys):

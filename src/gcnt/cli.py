@@ -73,6 +73,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ("gcnt.rl.run_dir", ("CheckpointError", "RunDirError")),
         ("gcnt.rl.loop", ("TrainingDivergedError",)),
         ("gcnt.rl.evaluate", ("PolicyMismatchError",)),
+        ("gcnt.analysis.runs", ("AnalysisError",)),
     ):
         mod = sys.modules.get(module)
         errors += [getattr(mod, n) for n in names if mod is not None and hasattr(mod, n)]

@@ -17,12 +17,9 @@ the runs come from (their ``provenance.json``).
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 
 from gcnt.commands.options import add_figure_options, figure_style
-
-log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,14 +46,10 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.analysis import curves as C
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs
 
-    try:
-        if args.points is not None and args.points < 2:
-            raise AnalysisError(f"--points must be >= 2, got {args.points}")
-        runs = find_runs(args.paths)
-        rows = C.learning_curves(runs, args.metric, args.points, max(1, args.smooth))
-    except AnalysisError as e:
-        log.error("%s", e)
-        return 2
+    if args.points is not None and args.points < 2:
+        raise AnalysisError(f"--points must be >= 2, got {args.points}")
+    runs = find_runs(args.paths)
+    rows = C.learning_curves(runs, args.metric, args.points, max(1, args.smooth))
     out = args.out or default_out(args.paths)
     ylabel = C.metric_label(runs, args.metric)
     style = figure_style(args)

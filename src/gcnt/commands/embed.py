@@ -12,12 +12,9 @@ options set size, fonts, title and names).
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 
 from gcnt.commands.options import add_figure_options, figure_style
-
-log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,29 +42,23 @@ def run(args: argparse.Namespace) -> int:
 
     embeddings = []
     style = figure_style(args)
-    try:
-        if args.paths:
-            runs = [r for r in find_runs(args.paths) if r.method in STRUCTURAL_METHODS]
-            if not runs and args.untrained is None:
-                raise AnalysisError(
-                    f"no GCNT or SWAT run in {', '.join(args.paths)} "
-                    f"(methods with structural vectors: {', '.join(STRUCTURAL_METHODS)})"
-                )
-            for r in runs if args.all_seeds else first_seed_per_method(runs):
-                embeddings.append(run_embedding(r, args.robots, style.names))
-        untrained = (
-            args.untrained
-            if args.untrained is not None
-            else ([] if args.paths else ["gcnt", "swat"])
-        )
-        for m in untrained:
-            torch.manual_seed(args.seed)
-            embeddings.append(vectors(m, args.robots, title=f"{style.name(m)} (untrained)"))
-        if not embeddings:
-            raise AnalysisError("nothing to embed: give runs or --untrained METHODS")
-    except AnalysisError as e:
-        log.error("%s", e)
-        return 2
+    if args.paths:
+        runs = [r for r in find_runs(args.paths) if r.method in STRUCTURAL_METHODS]
+        if not runs and args.untrained is None:
+            raise AnalysisError(
+                f"no GCNT or SWAT run in {', '.join(args.paths)} "
+                f"(methods with structural vectors: {', '.join(STRUCTURAL_METHODS)})"
+            )
+        for r in runs if args.all_seeds else first_seed_per_method(runs):
+            embeddings.append(run_embedding(r, args.robots, style.names))
+    untrained = (
+        args.untrained if args.untrained is not None else ([] if args.paths else ["gcnt", "swat"])
+    )
+    for m in untrained:
+        torch.manual_seed(args.seed)
+        embeddings.append(vectors(m, args.robots, title=f"{style.name(m)} (untrained)"))
+    if not embeddings:
+        raise AnalysisError("nothing to embed: give runs or --untrained METHODS")
     out = args.out or (default_out(args.paths) if args.paths else Path("figures"))
     plot_embeddings(embeddings, out / f"{args.name}.png", seed=args.seed, style=style)
     for e in embeddings:

@@ -12,12 +12,9 @@ title and names).
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 
 from gcnt.commands.options import add_figure_options, figure_style
-
-log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,30 +42,26 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.analysis.strobe import strobe_runs
 
     style = figure_style(args)
-    try:
-        if args.frames < 1 or args.steps < 1 or args.min_gap < 0:
-            raise AnalysisError(
-                f"--frames and --steps must be positive and --min-gap not negative "
-                f"(got {args.frames}, {args.steps}, {args.min_gap})"
-            )
-        runs = find_runs(args.paths)
-        if not args.all_seeds:
-            runs = first_seed_per_method(runs)
-        out = args.out or default_out(args.paths)
-        path = strobe_runs(
-            runs,
-            out,
-            robot=args.robot,
-            steps=args.steps,
-            frames=args.frames,
-            seed=args.seed,
-            min_gap=args.min_gap,
-            name=args.name,
-            style=style,
+    if args.frames < 1 or args.steps < 1 or args.min_gap < 0:
+        raise AnalysisError(
+            f"--frames and --steps must be positive and --min-gap not negative "
+            f"(got {args.frames}, {args.steps}, {args.min_gap})"
         )
-        for written in style.outputs(path):
-            print(f"written: {written}")
-    except AnalysisError as e:
-        log.error("%s", e)
-        return 2
+    runs = find_runs(args.paths)
+    if not args.all_seeds:
+        runs = first_seed_per_method(runs)
+    out = args.out or default_out(args.paths)
+    path = strobe_runs(
+        runs,
+        out,
+        robot=args.robot,
+        steps=args.steps,
+        frames=args.frames,
+        seed=args.seed,
+        min_gap=args.min_gap,
+        name=args.name,
+        style=style,
+    )
+    for written in style.outputs(path):
+        print(f"written: {written}")
     return 0

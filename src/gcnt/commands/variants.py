@@ -19,12 +19,9 @@ robot name pattern as a set is shown as the robots it matched), ``variants.md`` 
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 
 from gcnt.commands.options import add_figure_options, figure_style
-
-log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,17 +59,12 @@ def run(args: argparse.Namespace) -> int:
 
     stats = ("mean", "iqm") if args.iqm else ("mean",)
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
-    try:
-        runs = find_runs(args.paths)
-        if args.reps < 1 or not 0 < args.confidence < 1:
-            raise AnalysisError(
-                f"--reps must be >= 1 and --confidence in (0, 1); got {args.reps}, "
-                f"{args.confidence}"
-            )
-        summary = V.variant_summary(runs, sets, stats, args.confidence, args.reps, args.seed)
-    except AnalysisError as e:
-        log.error("%s", e)
-        return 2
+    runs = find_runs(args.paths)
+    if args.reps < 1 or not 0 < args.confidence < 1:
+        raise AnalysisError(
+            f"--reps must be >= 1 and --confidence in (0, 1); got {args.reps}, {args.confidence}"
+        )
+    summary = V.variant_summary(runs, sets, stats, args.confidence, args.reps, args.seed)
     out = args.out or default_out(args.paths)
     from gcnt.analysis.bars import plot_bars
 

@@ -70,18 +70,14 @@ def _evaluate(runs, episodes: int | None, force: bool) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+    from gcnt.analysis.runs import default_out, find_runs
     from gcnt.analysis.zeroshot import to_markdown, write, zero_shot_table
 
-    try:
-        runs = find_runs(args.paths)
-        if args.evaluate and _evaluate(runs, args.episodes, args.force):
-            log.error("some evaluations failed (see above)")
-            return 1
-        table = zero_shot_table(runs, args.robots, args.label)
-    except AnalysisError as e:
-        log.error("%s", e)
-        return 2
+    runs = find_runs(args.paths)
+    if args.evaluate and _evaluate(runs, args.episodes, args.force):
+        log.error("some evaluations failed (see above)")
+        return 1
+    table = zero_shot_table(runs, args.robots, args.label)
     out = args.out or default_out(args.paths)
     style = table_style(args)
     written = write(table, out, style=style)
