@@ -228,3 +228,13 @@ def test_a_fine_tuned_run_keeps_a_task_of_its_own(tmp_path, monkeypatch):
     named = load_recipe(recipe, [f"init_from={source / 'seed0'}", "task=mine"])
     own_task(named)
     assert named.task == "mine"
+
+
+def test_a_sweep_of_fine_tunes_puts_them_under_their_own_task(tmp_path, recipe_file, trained):
+    from gcnt import sweep as S
+
+    specs = S.expand(
+        [recipe_file], tmp_path / "sw", seeds=[0, 1], overrides=[f"init_from={trained}"]
+    )
+    assert [s.id for s in specs] == ["tiny-ft/td3-gcnt/seed0", "tiny-ft/td3-gcnt/seed1"]
+    assert {s.task for s in specs} == {"tiny-ft"}

@@ -96,6 +96,7 @@ def expand(
     anything runs (a :class:`SweepError` naming it).
     """
     from gcnt.recipes import RecipeError, read_recipe_file, recipe_from_dict
+    from gcnt.rl.init_from import own_task
 
     sweep_dir = Path(sweep_dir).resolve()
     group = group or sweep_dir.name
@@ -128,6 +129,7 @@ def expand(
                     given = [*per_method[m], *robot_ovr, f"network.name={m}", f"seed={s}"]
                     try:
                         r = recipe_from_dict(data, given, source)
+                        own_task(r)  # a fine-tune's folder is its own task's, as gcnt train's
                     except RecipeError as e:
                         raise SweepError(str(e)) from None
                     spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
