@@ -238,3 +238,52 @@ def test_a_sweep_of_fine_tunes_puts_them_under_their_own_task(tmp_path, recipe_f
     )
     assert [s.id for s in specs] == ["tiny-ft/td3-gcnt/seed0", "tiny-ft/td3-gcnt/seed1"]
     assert {s.task for s in specs} == {"tiny-ft"}
+
+
+def test_a_sweep_of_fine_tunes_from_a_run_not_yet_made_is_set_up(tmp_path, recipe_file, caplog):
+    from gcnt import sweep as S
+
+    missing = tmp_path / "later" / "seed0"
+    specs = S.expand([recipe_file], tmp_path / "sw", seeds=[0], overrides=[f"init_from={missing}"])
+    assert [s.id for s in specs] == ["tiny/td3-gcnt/seed0"]
+    assert "does not exist yet" in caplog.text
+
+
+def test_a_key_an_older_recipe_lacks_counts_as_its_default(tmp_path):
+    from gcnt.analysis.runs import recipe_defaults
+
+    assert recipe_defaults()["td3.target"] == "auto"
+    new = Run(fake_run(tmp_path / "new", td3={"target": "auto", "checkpoint_buffers": True}))
+    old = Run(fake_run(tmp_path / "old", seed=1))  # written before td3.target existed
+    other = Run(fake_run(tmp_path / "other", seed=2, td3={"target": "min"}))
+    assert new.fingerprint == old.fingerprint != other.fingerprint
+    # settings of methods the run does not train, and workers a single collector does not use
+    extra = Run(
+        fake_run(
+            tmp_path / "extra",
+            seed=3,
+            network={"method_kwargs": {"smp": {"hidden": 7}}},
+            ppo={"workers": 8, "collector": "single"},
+        )
+    )
+    assert extra.fingerprint == new.fingerprint
+    mine = Run(fake_run(tmp_path / "mine", seed=4, network={"method_kwargs": {"gcnt": {"ff": 8}}}))
+    assert mine.fingerprint != new.fingerprint
+
+
+def test_fine_tunes_recorded_without_their_source_fingerprint_are_seeds_of_one(tmp_path):
+    sources = [fake_run(tmp_path / "src" / f"seed{s}", seed=s) for s in (0, 1)]
+    tunes = [
+        Run(
+            fake_run(
+                tmp_path / "ft" / f"seed{s}",
+                seed=s,
+                task="Walker++-ft",
+                init_from=str(sources[s]),
+                resolved={"init_from": {"run": str(sources[s]), "env_steps": 2400}},
+            )
+        )
+        for s in (0, 1)
+    ]
+    assert tunes[0].fingerprint == tunes[1].fingerprint
+    assert [len(g.runs) for g in comparable_groups(tunes)] == [2]

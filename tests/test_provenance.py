@@ -65,6 +65,7 @@ def test_collect_records_the_commit_and_changes_to_tracked_files(repo: Path) -> 
 def test_where_git_cannot_tell_the_commit_is_none_with_the_reason(
     tmp_path: Path, repo: Path, monkeypatch
 ) -> None:
+    monkeypatch.setattr(P, "GIT_CACHE_S", -1.0)  # every query asks git
     plain = tmp_path / "plain"
     plain.mkdir()
     state = P.git_state(plain)
@@ -85,6 +86,15 @@ def test_where_git_cannot_tell_the_commit_is_none_with_the_reason(
     monkeypatch.setenv("PATH", str(tmp_path / "no-bin"))
     state = P.collect(["x"], repo=repo)  # a session is still recorded
     assert state["git_commit"] is None and state["git_note"] == "git is not installed"
+
+
+def test_the_runs_one_process_starts_together_ask_git_once(monkeypatch) -> None:
+    asked = []
+    monkeypatch.setattr(P, "_git_state", lambda repo: asked.append(repo) or P._unknown("x"))
+    monkeypatch.setattr(P, "_package_git", {})
+    for _ in range(3):  # e.g. gcnt train --seeds 0,1,2 creating three run directories
+        assert P.collect(["x"])["git_note"] == "x"
+    assert asked == [None]
 
 
 def _sessions(run: Path) -> list[dict]:

@@ -97,3 +97,16 @@ def test_stack_seeds_is_refused_with_slurm(tmp_path: Path, capsys) -> None:
     argv = ["sweep", str(QUICKSTART), "--dir", str(tmp_path / "s"), "--slurm", "--stack-seeds"]
     assert main([*argv, *TINY]) == 2
     assert "--stack-seeds runs in the local pool" in capsys.readouterr().err
+
+
+def test_a_stopped_stacked_start_is_not_restarted_one_by_one(tmp_path: Path, monkeypatch) -> None:
+    from gcnt.rl.stop import EXIT_STOPPED
+
+    # stopped on request (or killed) before any run directory: left for the next sweep
+    argv = [sys.executable, "-c", f"raise SystemExit({EXIT_STOPPED})"]
+    monkeypatch.setattr(local, "stacked_command", lambda group: argv)
+    sw = tmp_path / "sw"
+    main(["sweep", str(QUICKSTART), "--seeds", "0,1", "--dir", str(sw), "--stack-seeds", *TINY])
+    runs = S.Manifest.load(sw).runs
+    assert [r.state for r in runs] == ["pending", "pending"]
+    assert not any(Path(r.run_dir).exists() for r in runs)

@@ -23,6 +23,7 @@ import platform
 import socket
 import subprocess
 import sys
+import time
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -77,10 +78,27 @@ def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None
     }
 
 
+#: seconds a query of gcnt's own checkout is reused: the runs one process starts together
+#: (``gcnt train --seeds``) ask git once, not three times per run
+GIT_CACHE_S = 60.0
+_package_git: dict[tuple[str, str | None], tuple[float, dict[str, Any]]] = {}
+
+
 def git_state(repo: str | Path | None = None) -> dict[str, Any]:
     """``{"commit", "dirty", "note"}`` of ``repo``, or of the checkout whose tracked files
-    include the imported gcnt package; commit and dirty are None where unknown, and ``note``
-    says why."""
+    include the imported gcnt package (asked again after :data:`GIT_CACHE_S`); commit and dirty
+    are None where unknown, and ``note`` says why."""
+    if repo is not None:
+        return _git_state(repo)
+    key = (gcnt.__file__, os.environ.get("PATH"))  # where gcnt is, and which git answers
+    now = time.monotonic()
+    cached = _package_git.get(key)
+    if cached is None or now - cached[0] > GIT_CACHE_S:
+        cached = _package_git[key] = (now, _git_state(None))
+    return dict(cached[1])
+
+
+def _git_state(repo: str | Path | None) -> dict[str, Any]:
     try:
         if repo is None:
             package = Path(gcnt.__file__).resolve()

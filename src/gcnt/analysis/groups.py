@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from gcnt.analysis.runs import AnalysisError, Run, method_key, method_labels
+from gcnt.analysis.runs import AnalysisError, Run, method_key, method_labels, recipe_defaults
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +81,12 @@ def _names(task: str, method: str, by_print: dict[str, list[Run]]) -> dict[str, 
     warning that says what tells them apart."""
     views = {fp: members[0].experiment for fp, members in by_print.items()}
     keys = differing_keys(list(views.values()))
+    # a key left out of one experiment is at its default there: shown as that value
+    defaults = recipe_defaults()
+    views = {
+        fp: {**{k: defaults[k] for k in keys if k in defaults and k not in v}, **v}
+        for fp, v in views.items()
+    }
     told = "; ".join(
         f"{k}: {' vs '.join(dict.fromkeys(_text(v.get(k, _UNSET)) for v in views.values()))}"
         for k in keys
@@ -108,7 +114,8 @@ def _check_seeds(task: str, label: str, members: Sequence[Run]) -> None:
             robot = f" on {r.single_robot}" if r.single_robot else ""
             raise AnalysisError(
                 f"{seen[key].path} and {r.path}: both are seed {r.seed}{robot} of one experiment "
-                f"({task} {label}); a seed counts once: leave one of them out"
+                f"({task} {label}); a seed counts once: give the run directories to compare "
+                "instead of their folder, or move one of them out of it"
             )
         seen[key] = r
 

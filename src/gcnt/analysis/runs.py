@@ -11,6 +11,7 @@ A run directory, as ``gcnt train`` writes it::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -71,8 +72,40 @@ NOT_THE_EXPERIMENT = (
     "compile.warmup",
     "compile.torch_threads",
     "compile.twin_threads",
+    "td3.checkpoint_buffers",
     "resolved",
 )
+
+
+@functools.cache
+def recipe_defaults() -> dict[str, Any]:
+    """Every recipe key's current default as a dotted key (``td3.target``: ``auto``): a key an
+    older recipe lacks stands for its default, so a key at its default is left out of
+    :attr:`Run.experiment` in every recipe, old or new."""
+    import dataclasses
+
+    from gcnt.recipes import Recipe, algorithm_names, algorithm_section
+
+    def default(f: dataclasses.Field) -> Any:
+        if f.default is not dataclasses.MISSING:
+            return f.default
+        if f.default_factory is not dataclasses.MISSING:
+            return f.default_factory()
+        return dataclasses.MISSING
+
+    tree: dict[str, Any] = {}
+    for f in dataclasses.fields(Recipe):
+        value = default(f)
+        if dataclasses.is_dataclass(value):
+            tree[f.name] = dataclasses.asdict(value)
+        elif value is not dataclasses.MISSING and f.name not in ("sections", "resolved"):
+            tree[f.name] = value
+    for name in algorithm_names():
+        try:
+            tree[name] = dataclasses.asdict(algorithm_section(name)())
+        except TypeError:  # a section without defaults for every field
+            continue
+    return dict(_flatten(tree))
 
 
 class AnalysisError(ValueError):
@@ -309,20 +342,49 @@ class Run:
         whose record names its source run's fingerprint holds ``init_from.task`` and
         ``init_from.fingerprint`` instead of the source's path (fine-tunes of different seeds
         of one experiment are seeds of one fine-tune)."""
+        defaults = recipe_defaults()
+        unset = object()
         flat = {
             key: value
             for key, value in _flatten(self.recipe)
-            if value is not None  # null is the default, as a key an older recipe lacks
+            # null or the default: as a key an older recipe lacks
+            if value is not None
+            and value != defaults.get(key, unset)
             and not any(key == k or key.startswith(k + ".") for k in NOT_THE_EXPERIMENT)
         }
+        # settings of the methods the run does not train, and workers the collector does not use
+        method = self.method
+        for section in ("network.method_kwargs.", "ppo.kl_stop."):
+            for key in [k for k in flat if k.startswith(section)]:
+                if key[len(section) :].split(".", 1)[0] not in (method, "default"):
+                    del flat[key]
+        if _get(self.recipe, "ppo", "collector", default="single") != "multi":
+            flat.pop("ppo.workers", None)
         if self.single_robot is not None:
             flat.pop("env.robots", None)
-        record = _get(self.recipe, "resolved", "init_from")
-        if isinstance(record, dict) and record.get("fingerprint"):
+        source = self._init_source()
+        if source is not None:
             flat.pop("init_from", None)
-            flat["init_from.task"] = str(record.get("task"))
-            flat["init_from.fingerprint"] = str(record["fingerprint"])
+            flat["init_from.task"], flat["init_from.fingerprint"] = source
         return flat
+
+    def _init_source(self) -> tuple[str, str] | None:
+        """(task, fingerprint) of the run a fine-tuned run started from: from its record, or
+        (a record written before it held them) from the source run itself where it still is;
+        None when the run was trained from scratch or its source cannot be read."""
+        record = _get(self.recipe, "resolved", "init_from")
+        if not isinstance(record, dict):
+            return None
+        if record.get("fingerprint"):
+            return str(record.get("task")), str(record["fingerprint"])
+        path = record.get("run")
+        if not path or not (Path(path) / RECIPE_FILE).is_file():
+            return None
+        try:
+            source = Run(path)
+            return source.task, source.fingerprint
+        except AnalysisError:
+            return None
 
     @cached_property
     def fingerprint(self) -> str:
@@ -417,15 +479,15 @@ class Run:
             elif spec == "train":
                 wanted.update(self.train_robot_names())
             else:
-                wanted.update(_robot_names([spec]))
+                wanted.update(_robot_names([spec], self.recipe))
         return [r for r in record.robots if r in wanted]
 
     def test_robot_names(self) -> list[str]:
         """Names of the recipe's test robots, resolved through the robot catalogues."""
-        return _robot_names(self.test_robot_specs)
+        return _robot_names(self.test_robot_specs, self.recipe)
 
     def train_robot_names(self) -> list[str]:
-        names = _robot_names(self.train_robot_specs)
+        names = _robot_names(self.train_robot_specs, self.recipe)
         if names:
             return names
         rows = self.metrics()
@@ -437,13 +499,18 @@ class Run:
         ]
 
 
-def _robot_names(specs: Sequence[str]) -> list[str]:
+def _robot_names(specs: Sequence[str], recipe: dict | None = None) -> list[str]:
+    """Names of the robots of ``specs``, as the run of ``recipe`` names them (robot files of
+    one name are named apart among all of the run's robot lists)."""
     if not specs:
         return []
     from gcnt.morphology.catalogues import resolve_robots
 
+    lists = [("env", "robots"), ("env", "test_robots"), ("eval", "robots")]
+    run_specs = [s for key in lists for s in _get(recipe or {}, *key, default=[]) or []]
     try:
-        return list(dict.fromkeys(r.name for r in resolve_robots(list(specs))))
+        robots = resolve_robots(list(specs), names_from=run_specs)
+        return list(dict.fromkeys(r.name for r in robots))
     except Exception:  # noqa: BLE001 - a robot file that moved: fall back to what evals name
         return []
 

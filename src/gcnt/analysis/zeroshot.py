@@ -87,7 +87,8 @@ def zero_shot_table(
     runs: Sequence[Run], robots: Sequence[str] | None = None, label: str | None = None
 ) -> dict[str, Any]:
     """``{task: {"robots": [...], "methods": [...], "cells": {robot: {method: cell}},
-    "best": {robot: method}}}``; a cell holds mean, stderr, seeds and the per-seed means."""
+    "best": {robot: method or None}}}`` (``best``: the method shown in bold, :func:`bold_method`);
+    a cell holds mean, stderr, seeds and the per-seed means."""
     by_task: dict[str, list[RunGroup]] = defaultdict(list)
     for group in comparable_groups(runs):  # the seeds of one experiment each: a column
         by_task[group.task].append(group)
@@ -123,9 +124,8 @@ def zero_shot_table(
                 cells[robot] = row
         if not cells:
             continue
-        best = {
-            robot: max(row, key=lambda m, row=row: row[m]["mean"]) for robot, row in cells.items()
-        }
+        # the tables' bold: a best whose interval is separated from the runner-up's, else null
+        best = {robot: bold_method(row) for robot, row in cells.items()}
         protocol = protocols_text(c["protocol"] for row in cells.values() for c in row.values())
         out[task] = {
             "robots": list(cells),

@@ -223,7 +223,6 @@ def run(args: argparse.Namespace) -> int:
         if args.status:
             print(manifest.table())
             return 0
-        manifest.record_session()  # the code and command now running the sweep
         manifest.save()
         if args.dry_run:
             print(manifest.table())
@@ -231,6 +230,8 @@ def run(args: argparse.Namespace) -> int:
             return 0
         t0 = time.monotonic()
         with SweepLock(manifest.dir):
+            manifest.record_session()  # the code and command now running the sweep
+            manifest.save()
 
             def report(spec) -> None:
                 evals = ", ".join(f"eval {k}: {v}" for k, v in spec.eval_state.items())

@@ -6,12 +6,15 @@ run gets)."""
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gcnt.sweep.spec import RunSpec
 from gcnt.sweep.status import SweepError, slug
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from gcnt.recipes import Recipe
@@ -96,7 +99,6 @@ def expand(
     anything runs (a :class:`SweepError` naming it).
     """
     from gcnt.recipes import RecipeError, read_recipe_file, recipe_from_dict
-    from gcnt.rl.init_from import own_task
 
     sweep_dir = Path(sweep_dir).resolve()
     group = group or sweep_dir.name
@@ -129,9 +131,9 @@ def expand(
                     given = [*per_method[m], *robot_ovr, f"network.name={m}", f"seed={s}"]
                     try:
                         r = recipe_from_dict(data, given, source)
-                        own_task(r)  # a fine-tune's folder is its own task's, as gcnt train's
                     except RecipeError as e:
                         raise SweepError(str(e)) from None
+                    _fine_tune_task(r)
                     spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
                     spec.evals, spec.eval_episodes = list(evals), eval_episodes
                     spec.eval_deterministic = eval_deterministic
@@ -139,6 +141,30 @@ def expand(
     if not specs:
         raise SweepError("the sweep has no runs (no recipes?)")
     return specs
+
+
+def _fine_tune_task(r: Recipe) -> None:
+    """A fine-tune's folder is its own task's (``<source task>-ft``), as ``gcnt train`` names
+    it; where the source run does not exist yet (a sweep set up before the one it fine-tunes
+    from has run) the recipe's task stays, said once per source."""
+    from gcnt.recipes import RecipeError
+    from gcnt.rl.init_from import own_task
+
+    try:
+        own_task(r)
+    except (RecipeError, FileNotFoundError):
+        if r.init_from not in _MISSING_SOURCES:
+            _MISSING_SOURCES.add(r.init_from)
+            log.warning(
+                "init_from %s does not exist yet: its fine-tunes go under task %s here (gcnt "
+                "train records the task <source task>-ft when it runs)",
+                r.init_from,
+                r.task,
+            )
+
+
+#: sources of fine-tunes found missing (warned about once)
+_MISSING_SOURCES: set[str] = set()
 
 
 def _spec(

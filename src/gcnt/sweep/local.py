@@ -77,6 +77,10 @@ def finish_step(spec: RunSpec, what: str, rc: int) -> None:
         spec.eval_state[what.split(":", 1)[1]] = "done" if rc == 0 else "failed"
 
 
+#: the exit code of ``gcnt train`` refusing its input (one error line): a stacked start refused
+#: so trains its seeds one by one; a stopped or killed one (another code) is left as it is
+REFUSED = 2
+
 #: overrides that differ between the seeds of one experiment in a sweep
 _PER_SEED = ("seed=", "run_dir=", "logger.name=")
 
@@ -204,9 +208,9 @@ def run_local(
                 on_change(spec)
 
     def refused_stack(group: list[RunSpec], what: str, rc: int) -> bool:
-        """A stacked start that failed before it made any run directory: its seeds are queued
-        to run one by one."""
-        if len(group) == 1 or what != "train" or rc == 0:
+        """A stacked start refused before it made any run directory (exit code 2: the stacked
+        update cannot take the method): its seeds are queued to run one by one."""
+        if len(group) == 1 or what != "train" or rc != REFUSED:
             return False
         if any(spec.files_state() != "pending" for spec in group):
             return False
