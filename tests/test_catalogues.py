@@ -100,3 +100,10 @@ def test_name_patterns_pick_robots_in_catalogue_order():
     ]
     with pytest.raises(UnknownRobotError, match="no robot name matches"):
         resolve_robots(["nothing_like_this_*"])
+
+
+def test_a_benchmark_spelled_in_another_case_is_that_benchmark():
+    from gcnt.morphology.catalogues import resolve_robots
+
+    # MJCF3D was once spelled Mjcf3d: recipes and runs that say so still resolve
+    assert resolve_robots(["Mjcf3d:train"]) == resolve_robots(["MJCF3D:train"])

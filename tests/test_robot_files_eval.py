@@ -232,3 +232,44 @@ def test_eval_refuses_a_run_without_test_robots_before_loading_torch(run):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.stdout.split() == ["2", "False", "False"], done.stdout + done.stderr
     assert f"{run}: no robots to evaluate" in done.stderr
+
+
+@needs_gym
+def test_a_robot_file_keeps_one_name_in_training_its_evaluation_and_analysis(tmp_path):
+    from gcnt.analysis.runs import Run
+
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text(
+        TINY_TD3.format(root=ROOT)
+        .replace(
+            "robots: [hopper_3], test_robots: []",
+            f"robots: [{GYM / 'hopper.xml'}], test_robots: [{DMC / 'hopper.xml'}]",
+        )
+        .replace("max_episode_steps: 100", "max_episode_steps: 5")
+    )  # episodes of 5 steps: training reports the robot's return
+    assert gcnt(["train", str(recipe), f"run_dir={tmp_path / 'run'}"]) == 0
+    run = Run(tmp_path / "run")
+    trained = {k.split("/", 1)[-1] for row in run.metrics() for k in row}
+    assert "assets.hopper" in trained
+    final = sorted((tmp_path / "run" / "eval").glob("step*.json"))[-1]
+    assert set(json.loads(final.read_text())["robots"]) == {"assets.hopper", "suite.hopper"}
+    assert run.train_robot_names() == ["assets.hopper"]
+    assert run.test_robot_names() == ["suite.hopper"]
+    # another file of the name, evaluated later, is named apart from the run's own robots
+    other = tmp_path / "mine" / "hopper.xml"
+    shutil.copytree(DMC / "common", other.parent / "common")
+    shutil.copy(DMC / "hopper.xml", other)
+    robots = resolve_robots([str(GYM / "hopper.xml"), str(other)], names_from=run.train_robot_specs)
+    assert [r.name for r in robots] == ["hopper", "mine.hopper"]
+
+
+def test_linked_robot_files_are_named_after_the_paths_they_are_listed_under(tmp_path):
+    for real, link in (("h1", "a"), ("h2", "b")):
+        (tmp_path / "real").mkdir(exist_ok=True)
+        shutil.copy(DMC / "hopper.xml", tmp_path / "real" / f"{real}.xml")
+        shutil.copytree(DMC / "common", tmp_path / link / "common")
+        (tmp_path / link / "hopper.xml").symlink_to(tmp_path / "real" / f"{real}.xml")
+    robots = resolve_robots(
+        [str(tmp_path / "a" / "hopper.xml"), str(tmp_path / "b" / "hopper.xml")]
+    )
+    assert [r.name for r in robots] == ["a.hopper", "b.hopper"]

@@ -202,3 +202,63 @@ def test_the_paper_robots_before_their_import_name_the_command(capsys):
 
     line = error_line(capsys, ["robots", "Unimal100:train"])
     assert "not imported here" in line and "gcnt import-unimal unimals_100.zip" in line
+
+
+def test_the_out_folders_own_catalogues_are_the_ones_checked(unimals, morph, tmp_path, capsys):
+    other = tmp_path / "elsewhere"
+    assert gcnt(["import-unimal", str(unimals), "--name", "Paper", "--out", str(other)]) == 0
+    line = error_line(
+        capsys, ["import-unimal", str(unimals), "--name", "Again", "--out", str(other)]
+    )
+    assert "is already a robot of catalogue 'Paper'" in line, line
+    line = error_line(
+        capsys, ["import-unimal", str(unimals), "--name", "paper", "--out", str(other)]
+    )
+    assert "'Paper' is already a catalogue or benchmark" in line, line
+    assert gcnt(["import-unimal", str(unimals)]) == 0  # the folder gcnt reads has no Paper
+
+
+def test_a_copy_of_an_imported_folder_is_left_out_with_a_warning(unimals, morph, caplog):
+    import shutil
+
+    import_unimals(unimals)
+    shutil.copytree(morph / "Unimal100", morph / "Unimal100.bak")
+    refresh_catalogues()
+    with caplog.at_level("WARNING"):
+        assert [r.name for r in resolve_robots(["hopper_3", "Unimal100:test"])] == [
+            "hopper_3",
+            *FAKE["test"],
+        ]
+    warned = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
+    assert len(warned) == 1 and str(morph / "Unimal100.bak") in warned[0], warned
+    assert str(morph / "Unimal100") in warned[0].split("defined by")[1]
+
+
+def test_encrypted_archives_and_hidden_files_of_a_folder(unimals, morph, tmp_path, capsys):
+    import shutil
+
+    archive = _zip(unimals, tmp_path / "locked.zip")
+    data = bytearray(archive.read_bytes())
+    name = f"unimals_100/test/xml/{FAKE['test'][0]}.xml".encode()
+    for header, flags, name_at in ((b"PK\x03\x04", 6, 30), (b"PK\x01\x02", 8, 46)):
+        at = data.index(header)  # mark the entry encrypted (flag bit 0)
+        while data[at + name_at : at + name_at + len(name)] != name:
+            at = data.index(header, at + 1)
+        data[at + flags] |= 0x1
+    archive.write_bytes(bytes(data))
+    line = error_line(capsys, ["import-unimal", str(archive)])
+    assert "locked.zip:unimals_100/test/xml/" in line and "cannot read it" in line, line
+
+    copy = tmp_path / "mac" / "unimals_100"
+    shutil.copytree(unimals, copy)
+    (copy / "train" / "xml" / f"._{FAKE['train'][0]}.xml").write_bytes(b"\x00\x05\x16\x07")
+    assert import_unimals(copy).splits == SPLITS
+
+
+def test_gcnt_robots_lists_an_imported_folder_by_its_benchmark_name(unimals, morph, capsys):
+    import_unimals(unimals, name="Paper")
+    (morph / "Paper").rename(morph / "renamed")  # the folder's name is not the benchmark's
+    refresh_catalogues()
+    capsys.readouterr()
+    assert gcnt(["robots"]) == 0
+    assert "Paper:train (2)" in capsys.readouterr().out

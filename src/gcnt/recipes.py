@@ -332,6 +332,13 @@ class Recipe:
 SINGLE_ROBOT_NETWORKS = ("sr", "mlp")
 
 
+def run_robot_specs(recipe: Recipe) -> list[str]:
+    """Every robot spec of the run: ``env.robots``, ``env.test_robots`` and ``eval.robots``.
+    Robot names are chosen among all of them (``resolve_robots(..., names_from=...)``), so a
+    robot file has one name in the run's training metrics, evaluations and analysis."""
+    return [*recipe.env.robots, *recipe.env.test_robots, *recipe.eval.robots]
+
+
 def count_robots(specs: list[str]) -> int:
     """How many robots ``specs`` name, resolved as the run resolves them (a bad spec counts as
     one robot: training reports it)."""

@@ -155,8 +155,10 @@ def run(args: argparse.Namespace) -> int:
             f"{path}: no robots to evaluate (the recipe has no test robots; pass --robots ...)"
         )
     from gcnt.morphology.catalogues import resolve_robots
+    from gcnt.recipes import run_robot_specs
 
-    robots = resolve_robots(specs, repeats=True)  # unknown names, bad files: before torch loads
+    # unknown names, bad files: before torch loads; named as in the run's own robot lists
+    robots = resolve_robots(specs, repeats=True, names_from=run_robot_specs(recipe))
     from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
     from gcnt.rl.factories import check_benchmark
     from gcnt.rl.loop import check_network

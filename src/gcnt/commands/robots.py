@@ -191,8 +191,9 @@ def _list(specs: list[str]) -> int:
     print()
     print(UNIMAL_NOTE)
     sets = {f"Unimal:{s}": resolve_robots([f"Unimal:{s}"]) for s in ("train", "test")}
-    for name in imported_catalogues():  # MetaMorph's robots, imported
-        sets |= {f"{name}:{s}": resolve_robots([f"{name}:{s}"]) for s in ("train", "test")}
+    for name in imported_catalogues():  # MetaMorph's robots, imported, by their benchmark's name
+        for bench in load_benchmarks(catalogue=name):
+            sets |= {f"{bench}:{s}": resolve_robots([f"{bench}:{s}"]) for s in ("train", "test")}
     print(_stats_block(sets))
     return 0
 

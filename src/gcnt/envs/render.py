@@ -123,13 +123,15 @@ class Filming:
         self.model.vis.map.znear = NEAR_CLIP / extent
         self.model.vis.map.zfar = FAR_CLIP / extent
         self.camera = camera
+        # a named camera is looked up once (a missing one is reported once)
+        self._camera_id = camera_id(self.model, camera) if camera is not None else None
         self._follow: FollowCamera | None = None
         headless_gl()
         self.renderer = mujoco.Renderer(self.model, height=height, width=width)
 
     def _camera(self) -> mujoco.MjvCamera | int:
-        if self.camera is not None:
-            return camera_id(self.model, self.camera)
+        if self._camera_id is not None:
+            return self._camera_id
         if self._follow is None:  # placed at the first frame, from the robot's start pose
             root = int(self.env.robots[self.index].mj_body_ids[0])
             self._follow = FollowCamera(self.model, self.data, root)

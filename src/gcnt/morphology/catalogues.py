@@ -22,6 +22,7 @@ import dataclasses
 import fnmatch
 import functools
 import importlib
+import logging
 import os
 import re
 from collections.abc import Callable, Sequence
@@ -44,6 +45,8 @@ SPLITS: tuple[str, ...] = ("train", "test")
 #: Further split names a split file may declare: ``variants-<kind>``.
 VARIANT_SPLIT = re.compile(r"^variants-[a-z0-9_]+$")
 DEFAULT_SPLIT = "train"
+
+log = logging.getLogger(__name__)
 
 
 class UnknownRobotError(ValueError):
@@ -110,6 +113,7 @@ _BUILTIN: dict[str, str] = {
 
 
 def _clear_caches() -> None:
+    _usable_imports.cache_clear()
     _name_index.cache_clear()
     _load.cache_clear()
     _read_benchmarks.cache_clear()
@@ -141,15 +145,60 @@ def refresh_catalogues() -> None:
 IMPORTED_INDEX = "catalogue.yaml"
 
 
-def imported_catalogues() -> dict[str, Path]:
-    """Catalogues imported into the morphologies folder: name -> folder (hidden folders, an
-    import under way, left out)."""
-    try:
-        root = morphologies_dir()
-    except FileNotFoundError:
-        return {}
+def imported_catalogues(root: Path | None = None) -> dict[str, Path]:
+    """Catalogues imported into the morphologies folder ``root`` (default: the one gcnt reads):
+    name -> folder. Hidden folders (an import under way) are left out, and so is a folder whose
+    robot or benchmark names are already those of a catalogue before it (a backup copy of an
+    imported folder, say), with a warning naming both folders."""
+    if root is None:
+        try:
+            root = morphologies_dir()
+        except FileNotFoundError:
+            return {}
     found = sorted(root.glob(f"*/{IMPORTED_INDEX}"))
-    return {p.parent.name: p.parent for p in found if not p.parent.name.startswith(".")}
+    return _usable_imports(tuple(p.parent for p in found if not p.parent.name.startswith(".")))
+
+
+def split_keys(path: Path | None) -> list[str]:
+    """The benchmark names of a split file, as written (unreadable: none)."""
+    try:
+        raw = yaml.safe_load(path.read_text()) if path is not None else None
+    except (OSError, yaml.YAMLError):
+        return []
+    return [str(k) for k in raw] if isinstance(raw, dict) else []
+
+
+@functools.lru_cache(maxsize=8)
+def _usable_imports(folders: tuple[Path, ...]) -> dict[str, Path]:
+    from gcnt.morphology.unimal.imported import imported_catalogue
+
+    owner: dict[str, str] = {}  # robot or benchmark name -> what defines it
+    for name in [*_BUILTIN, *_REGISTRY]:
+        cat = get_catalogue(name)
+        try:
+            split = cat.split_path()
+        except FileNotFoundError:
+            split = None
+        for key in [*cat.robot_names(), *split_keys(split)]:
+            owner.setdefault(key, f"catalogue {name!r}")
+    out: dict[str, Path] = {}
+    for folder in folders:
+        cat = imported_catalogue(folder)
+        keys = [*cat.robot_names(), *split_keys(folder / IMPORTED_INDEX)]
+        clash = next((k for k in keys if k in owner), None)
+        if folder.name in owner or folder.name in out or clash is not None:
+            what = clash if clash is not None else folder.name
+            log.warning(
+                "%s is left out: %r is already defined by %s; remove or rename one of them",
+                folder,
+                what,
+                owner.get(what, f"catalogue {folder.name!r}"),
+            )
+            continue
+        out[folder.name] = folder
+        for key in keys:
+            owner[key] = str(folder)
+    return out
 
 
 def catalogue_names() -> list[str]:
@@ -346,6 +395,9 @@ def __getattr__(name: str) -> Any:
 
 def _benchmark_names(spec: str, benchmarks: dict[str, dict[str, list[str]]]) -> list[str]:
     bench_name, _, split = spec.partition(":")
+    if bench_name not in benchmarks:  # another spelling of one benchmark (Mjcf3d for MJCF3D)
+        same = [b for b in benchmarks if b.lower() == bench_name.lower()]
+        bench_name = same[0] if len(same) == 1 else bench_name
     if bench_name not in benchmarks:
         from gcnt.morphology.unimal.imported import DEFAULT_NAME
 
@@ -388,55 +440,52 @@ def robot_identity(robot: Robot) -> tuple[str, ...]:
 
 
 def _names_by_folder(paths: Sequence[Path], taken: set[str]) -> list[str]:
-    """Distinct names for robot files that share a stem: the stem after the fewest of its
-    folders that tell them apart, joined by dots (``suite.hopper``, ``assets.hopper``), and
-    none of the names in ``taken``."""
-    folders = [Path(os.path.realpath(p)).parent.parts[1:] for p in paths]
-    names = [Path(p).stem for p in paths]
+    """Distinct names for robot files that share a name: each file's stem after the fewest of
+    its folders that tell them apart, joined by dots (``suite.hopper``, ``assets.hopper``), and
+    none of the names in ``taken``. Stem and folders both come from the file's absolute path as
+    given (a link keeps the name it is listed under)."""
+    full = [Path(os.path.abspath(p)) for p in paths]
+    folders = [p.parent.parts[1:] for p in full]
+    names = [p.stem for p in full]
     for k in range(1, max(map(len, folders)) + 1):
-        names = [".".join((*f[-k:], Path(p).stem)) for f, p in zip(folders, paths, strict=True)]
+        names = [".".join((*f[-k:], p.stem)) for f, p in zip(folders, full, strict=True)]
         if len(set(names)) == len(names) and not taken.intersection(names):
             break
     return names
 
 
-def _name_apart(robots: list[Robot], from_file: list[bool]) -> list[Robot]:
+def _name_apart(
+    robots: list[Robot], from_file: list[bool], fixed: dict[str, Robot] | None = None
+) -> list[Robot]:
     """``robots`` (distinct) with the robots read from files that share a name with another
-    robot renamed after their folders (see :func:`_names_by_folder`); catalogue robots keep
-    their names."""
+    robot (of ``robots``, or a name of ``fixed``: robots already named) renamed after their
+    folders (see :func:`_names_by_folder`); catalogue robots keep their names. Names that still
+    clash are a DuplicateRobotError naming both files."""
+    fixed = fixed or {}
     groups: dict[str, list[int]] = {}
     for i, r in enumerate(robots):
         groups.setdefault(r.name, []).append(i)
-    out, taken = list(robots), set(groups)
-    for idx in groups.values():
+    out, taken = list(robots), set(groups) | set(fixed)
+    for name, idx in groups.items():
         files = [i for i in idx if from_file[i]]
-        if len(idx) < 2 or not files:
+        if not files or (len(idx) < 2 and name not in fixed):
             continue
         new = _names_by_folder([Path(robots[i].source) for i in files], taken)
         for i, n in zip(files, new, strict=True):
             out[i] = dataclasses.replace(robots[i], name=n)
+    seen = dict(fixed)
+    for r in out:
+        if r.name in seen:
+            raise DuplicateRobotError(
+                f"robot files {seen[r.name].source} and {r.source} would both be named "
+                f"{r.name!r}; rename or move one of them"
+            )
+        seen[r.name] = r
     return out
 
 
-def resolve_robots(specs: Sequence[str], *, repeats: bool = False) -> list[Robot]:
-    """Robots from specs, in order. A spec is one of:
-
-    * a robot name of any catalogue, e.g. ``walker_3_main`` or ``unimal_0042``;
-    * a path to an MJCF file, e.g. ``my_robots/walker_long.xml``, or a folder of them;
-    * ``Benchmark:split``, e.g. ``CWHH++:train``, ``Walker++:test``, ``Unimal:variants-dynamics``
-      (split defaults to ``train``; ``all`` means train then test);
-    * a shell-style pattern over the catalogues' robot names (``*``, ``?``, ``[...]``), e.g.
-      ``unimal_000?-length*``: every matching robot in catalogue order (none matching is an error).
-
-    A robot listed twice (directly or through two specs; a catalogue robot and its own file are
-    one robot, see :func:`robot_identity`) is an error: a robot list names each robot once, and
-    ``env.copies`` runs more copies of every robot. With ``repeats``, a robot listed again is
-    kept once instead (an evaluation's robots). Robot files are told apart by their file: two
-    files of one name (gymnasium's and dm_control's ``hopper.xml``) are two robots, named after
-    the folders that tell them apart (``assets.hopper``, ``suite.hopper``).
-    """
-    if isinstance(specs, str):
-        specs = [specs]
+def _resolve_each(specs: Sequence[str], *, repeats: bool) -> tuple[list[Robot], list[bool]]:
+    """The robots of ``specs`` as read (not yet named apart), and which were read from files."""
     robots: list[Robot] = []
     from_file: list[bool] = []
     origin: dict[tuple[str, ...], tuple[str, str]] = {}  # identity -> (name, spec)
@@ -476,4 +525,64 @@ def resolve_robots(specs: Sequence[str], *, repeats: bool = False) -> list[Robot
             origin[key] = (r.name, spec)
             robots.append(r)
             from_file.append(is_file)
-    return _name_apart(robots, from_file)
+    return robots, from_file
+
+
+def _names_of(specs: Sequence[str]) -> dict[tuple[str, ...], Robot]:
+    """Robot identity -> robot, named apart, for the robots of ``specs`` taken together; a spec
+    that no longer resolves (a robot file since moved) is left out."""
+    robots: list[Robot] = []
+    from_file: list[bool] = []
+    keys: set[tuple[str, ...]] = set()
+    for spec in specs:
+        try:
+            found, files = _resolve_each([spec], repeats=True)
+        except (ValueError, OSError):
+            continue
+        for r, f in zip(found, files, strict=True):
+            if robot_identity(r) not in keys:
+                keys.add(robot_identity(r))
+                robots.append(r)
+                from_file.append(f)
+    return {robot_identity(r): r for r in _name_apart(robots, from_file)}
+
+
+def resolve_robots(
+    specs: Sequence[str], *, repeats: bool = False, names_from: Sequence[str] = ()
+) -> list[Robot]:
+    """Robots from specs, in order. A spec is one of:
+
+    * a robot name of any catalogue, e.g. ``walker_3_main`` or ``unimal_0042``;
+    * a path to an MJCF file, e.g. ``my_robots/walker_long.xml``, or a folder of them;
+    * ``Benchmark:split``, e.g. ``CWHH++:train``, ``Walker++:test``, ``Unimal:variants-dynamics``
+      (split defaults to ``train``; ``all`` means train then test);
+    * a shell-style pattern over the catalogues' robot names (``*``, ``?``, ``[...]``), e.g.
+      ``unimal_000?-length*``: every matching robot in catalogue order (none matching is an error).
+
+    A robot listed twice (directly or through two specs; a catalogue robot and its own file are
+    one robot, see :func:`robot_identity`) is an error: a robot list names each robot once, and
+    ``env.copies`` runs more copies of every robot. With ``repeats``, a robot listed again is
+    kept once instead (an evaluation's robots). Robot files are told apart by their file: two
+    files of one name (gymnasium's and dm_control's ``hopper.xml``) are two robots, named after
+    the folders that tell them apart (``assets.hopper``, ``suite.hopper``).
+
+    ``names_from``: more specs whose robots the names are chosen among (a run's robot lists,
+    :func:`gcnt.recipes.run_robot_specs`), so that a robot file keeps one name in every
+    list of a run; a robot of ``specs`` that is not among them is named apart from them.
+    """
+    if isinstance(specs, str):
+        specs = [specs]
+    robots, from_file = _resolve_each(specs, repeats=repeats)
+    if not names_from:
+        return _name_apart(robots, from_file)
+    named = _names_of(names_from)
+    out = [
+        dataclasses.replace(r, name=named[key].name) if (key := robot_identity(r)) in named else r
+        for r in robots
+    ]
+    new = [i for i, r in enumerate(robots) if robot_identity(r) not in named]
+    fixed = {r.name: r for r in named.values()}
+    renamed = _name_apart([robots[i] for i in new], [from_file[i] for i in new], fixed)
+    for i, r in zip(new, renamed, strict=True):
+        out[i] = r
+    return out

@@ -26,7 +26,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
-from gcnt.recipes import Recipe
+from gcnt.recipes import Recipe, run_robot_specs
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.device import on_device
 from gcnt.rl.factories import base_env, make_env
@@ -43,10 +43,12 @@ class PolicyMismatchError(ValueError):
     """A checkpoint's policy weights that do not fit the network its recipe builds."""
 
 
-def eval_robots(specs: Sequence[str]) -> list[Robot]:
+def eval_robots(specs: Sequence[str], recipe: Recipe | None = None) -> list[Robot]:
     """The robots of ``specs``, each once (a robot named twice is evaluated once; robot files
-    of one name are distinct robots, see :func:`~gcnt.morphology.catalogues.resolve_robots`)."""
-    return resolve_robots(specs, repeats=True)
+    of one name are distinct robots, see :func:`~gcnt.morphology.catalogues.resolve_robots`),
+    named as in the run of ``recipe`` (:func:`~gcnt.recipes.run_robot_specs`)."""
+    names_from = run_robot_specs(recipe) if recipe is not None else ()
+    return resolve_robots(specs, repeats=True, names_from=names_from)
 
 
 def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
@@ -70,7 +72,7 @@ def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
 def check_eval_robots(recipe: Recipe, specs: Sequence[str]) -> list[Robot]:
     """The robots of ``specs`` if the recipe's policy can be evaluated on them (else the error
     that evaluating would raise, before anything runs)."""
-    robots = eval_robots(specs)
+    robots = eval_robots(specs, recipe)
     if robots:
         _pad(recipe, robots)
     return robots
@@ -103,7 +105,7 @@ def evaluate(
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    robots = eval_robots(robot_specs)
+    robots = eval_robots(robot_specs, recipe)
     copies = max(1, min(parallel, episodes))
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
     env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
@@ -183,7 +185,7 @@ def render_policy(
     if isinstance(robot, Robot):
         robots = [robot]
     else:
-        robots = (eval_robots([robot]) if robot else resolve_robots(recipe.env.robots))[:1]
+        robots = eval_robots([robot] if robot else recipe.env.robots, recipe)[:1]
     env = make_env(recipe, robots, seed=recipe.seed, max_limbs=_pad(recipe, robots), num_threads=1)
     actor = acting_policy(recipe, policy_state, env, True)
     with set_exploration_type(ExplorationType.DETERMINISTIC):

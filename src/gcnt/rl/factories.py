@@ -19,7 +19,7 @@ from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.registry import make_network
-from gcnt.recipes import Recipe, RecipeError
+from gcnt.recipes import Recipe, RecipeError, run_robot_specs
 
 
 def benchmark_of(recipe: Recipe) -> Benchmark:
@@ -35,7 +35,8 @@ def train_robots(recipe: Recipe) -> list[Robot]:
     """The recipe's training robots (a repeated robot is an error: use ``env.copies``)."""
     if not recipe.env.robots:
         raise RecipeError("env.robots is empty: name at least one robot to train on")
-    return check_benchmark(recipe, resolve_robots(recipe.env.robots), "env.robots")
+    robots = resolve_robots(recipe.env.robots, names_from=run_robot_specs(recipe))
+    return check_benchmark(recipe, robots, "env.robots")
 
 
 def check_benchmark(recipe: Recipe, robots: Sequence[Robot], where: str) -> list[Robot]:

@@ -41,10 +41,10 @@ from gcnt.morphology.catalogues import (
     IMPORTED_INDEX,
     Catalogue,
     catalogue_names,
-    load_benchmarks,
+    get_catalogue,
+    imported_catalogues,
     morphologies_dir,
     refresh_catalogues,
-    robot_catalogue,
 )
 from gcnt.morphology.robot import MAX_ROBOT_FILE_BYTES, Robot, RobotFileError, robot_from_xml
 from gcnt.morphology.unimal.catalogue import as_unimal, load_unimal
@@ -127,7 +127,8 @@ def _folder_members(path: Path) -> list[Member]:
             continue
         if not xml.is_dir():
             raise UnimalImportError(f"{root}: no {folder}/xml/ folder; {_LAYOUT}")
-        files = sorted(p for p in xml.iterdir() if p.suffix == ".xml")
+        # hidden names left out: macOS's AppleDouble copies ._<robot>.xml are not robots
+        files = sorted(p for p in xml.iterdir() if p.suffix == ".xml" and p.name[0] != ".")
         if not files:
             raise UnimalImportError(f"{xml}: no .xml robot files; {_LAYOUT}")
         for file in files:
@@ -152,6 +153,11 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, where: str) ->
             data = f.read(MAX_ROBOT_FILE_BYTES + 1)
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as e:  # a damaged archive
         raise UnimalImportError(f"{where}: cannot read it from the archive ({e})") from None
+    except (RuntimeError, NotImplementedError) as e:  # encrypted, or compressed in another way
+        raise UnimalImportError(
+            f"{where}: cannot read it from the archive ({e}); unpack the archive and give the "
+            "folder, or zip it again without a password"
+        ) from None
     if len(data) > MAX_ROBOT_FILE_BYTES:
         raise UnimalImportError(f"{where}: too large for a robot file")
     return data
@@ -240,7 +246,38 @@ def check_member(member: Member) -> bytes:
 # ------------------------------------------------------------------------------ writing one
 
 
-def check_name(name: str, out: Path) -> None:
+@dataclass
+class Defined:
+    """What a new catalogue in a morphologies folder must not reuse: gcnt's own catalogues and
+    those already imported into that folder."""
+
+    #: catalogue and benchmark names
+    names: list[str]
+    #: robot name -> its catalogue
+    robots: dict[str, str]
+
+
+def defined_in(out: Path) -> Defined:
+    """The catalogue, benchmark and robot names defined for gcnt reading the folder ``out``."""
+    from gcnt.morphology.catalogues import split_keys
+
+    imported = imported_catalogues()
+    cats = [get_catalogue(n) for n in catalogue_names() if n not in imported]
+    cats += [imported_catalogue(f) for f in imported_catalogues(Path(out)).values()]
+    names: list[str] = []
+    robots: dict[str, str] = {}
+    for cat in cats:
+        try:
+            split = cat.split_path()
+        except FileNotFoundError:
+            split = None
+        names += [cat.name, *split_keys(split)]
+        for robot in cat.robot_names():
+            robots.setdefault(robot, cat.name)
+    return Defined(names, robots)
+
+
+def check_name(name: str, out: Path, defined: Defined | None = None) -> None:
     """A UnimalImportError unless ``name`` can be a new catalogue and benchmark in ``out``."""
     if not _CATALOGUE_NAME.fullmatch(name):
         raise UnimalImportError(
@@ -252,7 +289,7 @@ def check_name(name: str, out: Path) -> None:
         raise UnimalImportError(
             f"{folder}: already imported; remove the folder to import again, or give another --name"
         )
-    taken = [*catalogue_names(), *load_benchmarks()]
+    taken = (defined or defined_in(out)).names
     clash = next((t for t in taken if t.lower() == name.lower()), None)
     if clash is not None:
         raise UnimalImportError(
@@ -285,7 +322,8 @@ def import_unimals(
     ``out`` (default: the one gcnt reads). Every file is checked before the folder appears: a
     bad file is a one-line error naming it, and nothing is left behind."""
     out = Path(out) if out is not None else morphologies_dir()
-    check_name(name, out)
+    defined = defined_in(out)
+    check_name(name, out, defined)
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / f".{name}.importing-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
@@ -294,7 +332,7 @@ def import_unimals(
     try:
         with read_set(path) as members:
             for member in members:
-                _check_unique(member, origin)
+                _check_unique(member, origin, defined.robots)
                 data = check_member(member)
                 dest = tmp / member.set / "xml" / f"{member.name}.xml"
                 dest.parent.mkdir(parents=True, exist_ok=True)
@@ -313,7 +351,7 @@ def import_unimals(
     return ImportedSet(out / name, splits)
 
 
-def _check_unique(member: Member, origin: dict[str, str]) -> None:
+def _check_unique(member: Member, origin: dict[str, str], robots: dict[str, str]) -> None:
     """A robot name is one robot: not twice in the set, not a robot of another catalogue."""
     if member.name in origin:
         raise UnimalImportError(
@@ -321,7 +359,7 @@ def _check_unique(member: Member, origin: dict[str, str]) -> None:
             "names one robot"
         )
     origin[member.name] = member.where
-    other = robot_catalogue(member.name)
+    other = robots.get(member.name)
     if other is not None:
         raise UnimalImportError(
             f"{member.where}: robot {member.name!r} is already a robot of catalogue {other!r}"
