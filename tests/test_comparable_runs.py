@@ -244,9 +244,13 @@ def test_a_sweep_of_fine_tunes_from_a_run_not_yet_made_is_set_up(tmp_path, recip
     from gcnt import sweep as S
 
     missing = tmp_path / "later" / "seed0"
-    specs = S.expand([recipe_file], tmp_path / "sw", seeds=[0], overrides=[f"init_from={missing}"])
-    assert [s.id for s in specs] == ["tiny/td3-gcnt/seed0"]
-    assert "does not exist yet" in caplog.text
+    for sweep in ("sw", "again"):  # said once per sweep set up, not once per run
+        caplog.clear()
+        specs = S.expand(
+            [recipe_file], tmp_path / sweep, seeds=[0, 1], overrides=[f"init_from={missing}"]
+        )
+        assert [s.id for s in specs] == ["tiny/td3-gcnt/seed0", "tiny/td3-gcnt/seed1"]
+        assert caplog.text.count("does not exist yet") == 1
 
 
 def test_a_key_an_older_recipe_lacks_counts_as_its_default(tmp_path):

@@ -113,6 +113,7 @@ def expand(
         robots = [(name, robot_overrides(spec)) for name, spec in per_robot_runs(per_robot)]
     specs: list[RunSpec] = []
     seen: dict[str, str] = {}
+    missing: set[str] = set()  # fine-tunes' sources not made yet, each said once
     for recipe_path in recipes:
         recipe_path = Path(recipe_path)
         if not recipe_path.is_file():
@@ -133,7 +134,7 @@ def expand(
                         r = recipe_from_dict(data, given, source)
                     except RecipeError as e:
                         raise SweepError(str(e)) from None
-                    _fine_tune_task(r)
+                    _fine_tune_task(r, missing)
                     spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
                     spec.evals, spec.eval_episodes = list(evals), eval_episodes
                     spec.eval_deterministic = eval_deterministic
@@ -143,28 +144,24 @@ def expand(
     return specs
 
 
-def _fine_tune_task(r: Recipe) -> None:
+def _fine_tune_task(r: Recipe, missing: set[str]) -> None:
     """A fine-tune's folder is its own task's (``<source task>-ft``), as ``gcnt train`` names
     it; where the source run does not exist yet (a sweep set up before the one it fine-tunes
-    from has run) the recipe's task stays, said once per source."""
+    from has run) the recipe's task stays, said once per source (``missing``: those said)."""
     from gcnt.recipes import RecipeError
     from gcnt.rl.init_from import own_task
 
     try:
         own_task(r)
     except (RecipeError, FileNotFoundError):
-        if r.init_from not in _MISSING_SOURCES:
-            _MISSING_SOURCES.add(r.init_from)
+        if r.init_from not in missing:
+            missing.add(r.init_from)
             log.warning(
                 "init_from %s does not exist yet: its fine-tunes go under task %s here (gcnt "
                 "train records the task <source task>-ft when it runs)",
                 r.init_from,
                 r.task,
             )
-
-
-#: sources of fine-tunes found missing (warned about once)
-_MISSING_SOURCES: set[str] = set()
 
 
 def _spec(
