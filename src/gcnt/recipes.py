@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import logging
 import types
 import typing
 from dataclasses import dataclass, field
@@ -20,6 +21,8 @@ from typing import Any, Literal
 import yaml
 
 from gcnt.suggest import did_you_mean
+
+log = logging.getLogger(__name__)
 
 
 class RecipeError(ValueError):
@@ -655,6 +658,59 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     base's, section by section.
     """
     return recipe_from_dict(read_recipe_file(path), overrides, source=str(path))
+
+
+def load_run_recipe(
+    path: str | Path, overrides: list[str] | None = None, *, anywhere: bool = False
+) -> Recipe:
+    """The recipe a run recorded (its ``recipe.yaml``), to go on with here, with ``overrides``.
+
+    A run moves between machines: the switches that need CUDA (:attr:`CompileConfig.CUDA_ONLY`)
+    are dropped, in one warning line, when the run goes on without CUDA (e.g. a GPU run resumed
+    with ``device=cpu``), unless an override sets them (then refused as in any recipe). With
+    ``anywhere`` (a run read rather than trained on: evaluation, analysis, a fine-tune's source),
+    a run recorded on a CUDA device that this machine lacks is read on the CPU, in one info line;
+    a resumed run instead names the ``device=cpu`` override that moves it."""
+    data = read_recipe_file(path)
+    overrides = list(overrides or [])
+    given = {o.split("=", 1)[0].strip() for o in overrides if "=" in o}
+    effective = yaml.safe_load(yaml.safe_dump(data or {}))
+    try:
+        for o in overrides:
+            _apply_override(effective, o)
+    except RecipeError:
+        return recipe_from_dict(data, overrides, source=str(path))  # says what is wrong
+    device = str(effective.get("device", "cpu"))
+    if anywhere and "device" not in given and not _device_here(device):
+        log.info("%s: recorded on %s, which this machine lacks: read on the cpu", path, device)
+        overrides.append("device=cpu")
+        device = "cpu"
+    switches = effective.get("compile") if isinstance(effective.get("compile"), dict) else {}
+    dropped = [
+        key
+        for key in CompileConfig.CUDA_ONLY
+        if switches.get(key) is True and f"compile.{key}" not in given
+    ]
+    if dropped and not device.startswith("cuda"):
+        log.warning(
+            "%s: continuing on %s without %s (CUDA only)",
+            path,
+            device,
+            ", ".join(f"compile.{key}" for key in dropped),
+        )
+        overrides += [f"compile.{key}=false" for key in dropped]
+    return recipe_from_dict(data, overrides, source=str(path))
+
+
+def _device_here(device: str) -> bool:
+    """Whether this machine has the CUDA device ``device`` names (True for anything else: a
+    malformed device is left to the recipe's own check)."""
+    index = device.removeprefix("cuda").removeprefix(":") or "0"
+    if not device.startswith("cuda") or not index.isdigit():
+        return True
+    import torch  # only for a GPU recipe
+
+    return torch.cuda.is_available() and int(index) < torch.cuda.device_count()
 
 
 def save_recipe(recipe: Recipe, path: str | Path) -> None:

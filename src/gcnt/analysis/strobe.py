@@ -30,7 +30,7 @@ def _policy_and_env(run: Run, robot: str, seed: int):
     from gcnt.rl.factories import make_env
     from gcnt.rl.run_dir import RunDir
 
-    recipe = RunDir(run.path).load_recipe()
+    recipe = RunDir(run.path).load_recipe(anywhere=True)
     policy_state = run.policy_state()
     robots = resolve_robots([robot])
     train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))

@@ -123,11 +123,11 @@ def _run_recipe(path: Path):
     """The recipe of the run directory ``path``, read without loading torch, so that mistakes in
     what to evaluate are reported before anything heavy is loaded."""
     from gcnt.analysis.runs import RECIPE_FILE
-    from gcnt.recipes import load_recipe
+    from gcnt.recipes import load_run_recipe
 
     if not (path / RECIPE_FILE).exists():
         raise FileNotFoundError(f"{path}: no {RECIPE_FILE}; is this a gcnt run directory?")
-    return load_recipe(path / RECIPE_FILE)
+    return load_run_recipe(path / RECIPE_FILE, anywhere=True)
 
 
 def run(args: argparse.Namespace) -> int:

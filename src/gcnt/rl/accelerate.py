@@ -57,6 +57,20 @@ def accelerate(fn: Callable, config: CompileConfig, device: str | torch.device) 
     return cudagraph_step(compile_step(fn, config), config, device)
 
 
+#: torch.compile modes whose compiled steps run in CUDA graph trees: a step's outputs live in the
+#: tree's memory pool and are overwritten by a later step
+CUDAGRAPH_TREE_MODES = ("reduce-overhead", "max-autotune")
+
+
+def owned(outputs: dict[str, torch.Tensor], config: CompileConfig) -> dict[str, torch.Tensor]:
+    """A step's outputs that outlive the next step: cloned out of the CUDA graph trees' memory
+    when ``compile.mode`` runs them there (a phase reads all its steps' losses at its end),
+    ``outputs`` itself otherwise."""
+    if config.compile and config.mode in CUDAGRAPH_TREE_MODES:
+        return {k: v.clone() for k, v in outputs.items()}
+    return outputs
+
+
 def begin_step(config: CompileConfig) -> None:
     """Mark a new step for CUDA-graphed code (call before each graphed step; a no-op else)."""
     if config.cudagraphs or config.policy_cudagraphs:

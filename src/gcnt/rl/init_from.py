@@ -46,7 +46,7 @@ def own_task(recipe: Recipe) -> None:
     ``<source task>-ft`` where the recipe's task is the source run's (another task is kept)."""
     if not recipe.init_from:
         return
-    task = _source(recipe).load_recipe().task
+    task = _source(recipe).load_recipe(anywhere=True).task
     if recipe.task == task:
         recipe.task = task + FINE_TUNE_SUFFIX
 
@@ -75,9 +75,9 @@ def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
 
     where = f"init_from {recipe.init_from}"
     source = _source(recipe)
-    source_recipe = source.load_recipe()
+    source_recipe = source.load_recipe(anywhere=True)
     check_compatible(recipe, source_recipe, where)
-    state = source.load_checkpoint(map_location=recipe.device)
+    state = source.load_checkpoint()
     if state.get("algo", recipe.algo) != recipe.algo:
         raise RecipeError(
             f"{where}: its checkpoint is a {state['algo']} learner, this recipe has "

@@ -156,7 +156,7 @@ def train(
     robots, env, algo = prepared.robots, prepared.env, prepared.algo
     t0 = time.perf_counter()
 
-    env_steps = resume_checkpoint(run, algo, recipe.device) if resume else 0
+    env_steps = resume_checkpoint(run, algo) if resume else 0
     start, total = env_steps, recipe.collector.total_frames
     if not resume or env_steps < total:  # a finished run's recipe is left as it was
         run.save_recipe(recipe)  # after the checkpoint was found to fit it
@@ -241,10 +241,10 @@ def log_summary(
         )
 
 
-def resume_checkpoint(run: RunDir, algo: Algorithm, device: str) -> int:
+def resume_checkpoint(run: RunDir, algo: Algorithm) -> int:
     """Load the run's checkpoint into ``algo`` (learner state, global RNG state, buffers) and
     drop the metrics rows logged after it; returns its env steps."""
-    state = run.load_checkpoint(map_location=device)
+    state = run.load_checkpoint()
     try:
         algo.load_state_dict(state["learner"])
     except (ValueError, RuntimeError, KeyError) as e:

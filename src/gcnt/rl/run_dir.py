@@ -23,7 +23,7 @@ import torch
 
 from gcnt import provenance
 from gcnt.files import GiB, open_regular
-from gcnt.recipes import Recipe, RecipeError, load_recipe, save_recipe
+from gcnt.recipes import Recipe, RecipeError, load_run_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
     metrics_line,
@@ -132,10 +132,12 @@ class RunDir:
         save_recipe(recipe, tmp)
         os.replace(tmp, self.recipe_path)
 
-    def load_recipe(self, overrides: list[str] | None = None) -> Recipe:
+    def load_recipe(self, overrides: list[str] | None = None, *, anywhere: bool = False) -> Recipe:
+        """The run's recipe to go on with on this machine (:func:`gcnt.recipes.load_run_recipe`:
+        ``anywhere`` for a run read, not trained on)."""
         if not self.recipe_path.exists():
             raise FileNotFoundError(f"{self.path}: no {RECIPE_FILE}; is this a gcnt run directory?")
-        return load_recipe(self.recipe_path, overrides)
+        return load_run_recipe(self.recipe_path, overrides, anywhere=anywhere)
 
     # --- metrics
     def log_metrics(self, row: dict[str, Any]) -> None:
@@ -214,9 +216,12 @@ class RunDir:
     def has_checkpoint(self) -> bool:
         return self.checkpoint_path.exists()
 
-    def load_checkpoint(self, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    def load_checkpoint(self) -> dict[str, Any]:
         """The last checkpoint, read with ``torch.load(..., weights_only=True)``: tensors and
-        plain Python types only, so that a checkpoint from someone else cannot run code.
+        plain Python types only, so that a checkpoint from someone else cannot run code. Its
+        tensors stay on the CPU, whatever device the run trains on: each ``load_state_dict``
+        places them (modules and optimisers onto their parameters' devices), and the RNG states
+        and NumPy keys must be CPU tensors.
         (Checkpoints written before :func:`plain_state` hold NumPy arrays: NumPy's own array
         reconstruction, :data:`NUMPY_GLOBALS`, is allowed for them.) NumPy arrays saved by an
         algorithm's state come back as tensors, NumPy scalars as Python numbers. A missing,
@@ -228,7 +233,7 @@ class RunDir:
         f = open_regular(path, MAX_CHECKPOINT_BYTES, what, CheckpointError)
         try:
             with f, torch.serialization.safe_globals(NUMPY_GLOBALS):
-                state = torch.load(f, map_location=map_location, weights_only=True)
+                state = torch.load(f, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises many kinds for a truncated or foreign file
             unsafe = _unsafe_globals(path)
             if unsafe:

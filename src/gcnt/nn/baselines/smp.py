@@ -78,8 +78,11 @@ def message_levels(depth: Tensor, k: int) -> int:
     While a CUDA graph is captured or torch.compile traces, that read (a device sync, a data-
     dependent graph break) is not allowed, so every level a tree of ``k`` limbs can have runs
     instead: levels below the deepest limb select no limb and change nothing."""
-    capturing = depth.is_cuda and torch.cuda.is_current_stream_capturing()
-    if capturing or torch.compiler.is_compiling():
+    # is_compiling() first: torch.compile then never reads the capture flag, which it would
+    # otherwise guard on and recompile for when a CUDA graph captures the compiled step
+    if torch.compiler.is_compiling():
+        return k - 1
+    if depth.is_cuda and torch.cuda.is_current_stream_capturing():
         return k - 1
     return int(depth.max()) if depth.numel() else -1
 

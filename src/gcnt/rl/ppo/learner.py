@@ -46,6 +46,7 @@ from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.accelerate import autocast, compile_step
 from gcnt.rl.algorithm import Algorithm, CollectSettings
+from gcnt.rl.device import load_optimizer_state
 from gcnt.rl.factories import (
     base_env,
     env_widths,
@@ -312,7 +313,7 @@ class PPOLearner:
 
     def load_state_dict(self, state: dict) -> None:
         self.load_networks(state)
-        self.opt.load_state_dict(state["opt"])
+        load_optimizer_state(self.opt, state["opt"])
         if self.obs_norm is not None and state.get("obs_norm") is not None:
             self.obs_norm.load_state_dict(state["obs_norm"])
         self.iteration = state["iteration"]

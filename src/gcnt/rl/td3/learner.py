@@ -23,8 +23,8 @@ collected batch to :meth:`TD3.process`):
    :func:`apply_gradients`, then :func:`soft_update` of all four target networks by ``tau``.
 
 Steps 4 and 5 are the two functions the ``compile:`` recipe section may compile or capture
-(:mod:`gcnt.rl.accelerate`). Exploration is the actor plus Gaussian noise (torchrl's
-``AdditiveGaussianModule``). Settings: the ``td3:`` recipe section (:mod:`gcnt.rl.td3.config`).
+(:mod:`gcnt.rl.accelerate`). Exploration is the actor plus Gaussian noise, clipped to the
+action bounds (:class:`~gcnt.rl.td3.exploration.GaussianExploration`). Settings: the ``td3:`` recipe section (:mod:`gcnt.rl.td3.config`).
 Several seeds in one process: :mod:`gcnt.rl.td3.stacked` (the same steps under one vmap).
 
 Two update schedules (``td3.schedule``):
@@ -51,18 +51,19 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
-from torchrl.modules import AdditiveGaussianModule
 
 from gcnt import keys as K
 from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe
-from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs
+from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs, owned
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.config_check import check_replay_memory
+from gcnt.rl.device import load_optimizer_state
 from gcnt.rl.factories import load_weights, make_net, network_weights
 from gcnt.rl.td3 import replay as rb
 from gcnt.rl.td3.config import TD3Config, target_rule
+from gcnt.rl.td3.exploration import GaussianExploration
 from gcnt.rl.td3.loss import (
     critic_error,
     deterministic_actor_loss,
@@ -274,8 +275,8 @@ class TD3Learner:
 
     def load_state_dict(self, state: dict) -> None:
         self.load_networks(state)
-        self.actor_opt.load_state_dict(state["actor_opt"])
-        self.critic_opt.load_state_dict(state["critic_opt"])
+        load_optimizer_state(self.actor_opt, state["actor_opt"])
+        load_optimizer_state(self.critic_opt, state["critic_opt"])
         # the recipe's learning rate wins over the saved one: a run resumed with another
         # td3.lr (e.g. after a divergence) trains with it
         for opt in (self.actor_opt, self.critic_opt):
@@ -314,11 +315,11 @@ def delayed_update(learner, batch: TensorDictBase) -> dict[str, torch.Tensor]:
     ``updates``, ``config`` and ``accel``: a critic step, then an actor + target step on every
     ``policy_delay``-th call (two graphed steps, chosen here in Python)."""
     begin_step(learner.accel)
-    out = {"loss_critic": learner.critic_step(batch)["loss_critic"]}
+    out = owned({"loss_critic": learner.critic_step(batch)["loss_critic"]}, learner.accel)
     learner.updates += 1
     if learner.updates % learner.config.policy_delay == 0:
         begin_step(learner.accel)
-        out["loss_actor"] = learner.actor_step(batch)["loss_actor"]
+        out |= owned({"loss_actor": learner.actor_step(batch)["loss_actor"]}, learner.accel)
     return out
 
 
@@ -505,10 +506,7 @@ class TD3(Algorithm):
 
 def _with_noise(actor: TensorChainModule, spec, sigma: float) -> TensorDictSequential:
     """``actor`` followed by constant Gaussian exploration noise of std ``sigma``."""
-    noise = AdditiveGaussianModule(
-        spec, sigma_init=sigma, sigma_end=sigma, annealing_num_steps=1, action_key=ACTION
-    )
-    return TensorDictSequential(actor, noise)
+    return TensorDictSequential(actor, GaussianExploration(spec, sigma, ACTION))
 
 
 def _whole_batches(frames: int, frames_per_batch: int) -> int:
