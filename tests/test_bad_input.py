@@ -534,3 +534,14 @@ def test_a_nan_action_raises_naming_the_robot():
             env.step(td)
     finally:
         env.close()
+
+
+def test_training_and_test_robot_lists_that_overlap_name_the_robots(tmp_path, capsys):
+    quickstart = str(Path(__file__).parents[1] / "recipes" / "quickstart.yaml")
+    # a split and a name, a robot file and its catalogue name: the same robots
+    hopper_3 = Path(__file__).parents[1] / "morphologies" / "smpenv" / "hopper_3.xml"
+    overlap = f'env.test_robots=[hopper_5, "{hopper_3}", walker_2_main]'
+    tiny = ["collector.total_frames=20", "td3.init_random_frames=10", "eval.episodes=0"]
+    line = error_line(capsys, ["train", quickstart, overlap, *tiny, f"run_dir={tmp_path / 'r'}"])
+    assert "env.robots and env.test_robots both list hopper_3, hopper_5" in line
+    assert not (tmp_path / "r").exists()

@@ -210,7 +210,7 @@ def test_a_fine_tuned_run_keeps_a_task_of_its_own(tmp_path, monkeypatch):
     short = ["collector.total_frames=10", "td3.init_random_frames=5", "checkpoint_interval=10"]
     for seed in (0, 1):
         argv = ["train", recipe, "--init-from", str(source / f"seed{seed}"), f"seed={seed}"]
-        assert main([*argv, "env.robots=[hopper_4]", *tiny, *short]) == 0
+        assert main([*argv, "env.robots=[hopper_5]", *tiny, *short]) == 0
     tuned = Path("runs/tiny-ft/td3-gcnt")
     assert sorted(p.name for p in source.iterdir()) == ["seed0", "seed1"]
     assert sorted(p.name for p in tuned.iterdir()) == ["seed0", "seed1"]

@@ -171,3 +171,25 @@ def test_a_folder_it_cannot_write_is_one_error_line(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert "curves.csv: cannot write (Permission denied); --out DIR writes elsewhere" in err
+
+
+def test_names_keys_that_name_nothing_shown_are_an_error_with_a_suggestion(tmp_path, capsys):
+    from cli_helpers import error_line
+
+    make_run(tmp_path, "gcnt", 0, [600, 1200], lambda s: s / 100)
+    out = ["--out", str(tmp_path / "fig")]
+    line = error_line(capsys, ["curves", str(tmp_path), "--names", "GCNT=Ours", *out])
+    assert "--names GCNT: no method, task or robot set here is called 'GCNT'" in line
+    assert "did you mean 'gcnt'?" in line and not (tmp_path / "fig").exists()
+    line = error_line(capsys, ["zeroshot", str(tmp_path), "--names", "Walker+=W", *out])
+    assert "did you mean 'Walker++'?" in line
+    # what is shown: its method and task, by id, folder spelling or with an addition
+    names = "gcnt=Ours,Walkerpp=Walker,gcnt [td3.lr=0.001]=Ours-lr,td3:gcnt=Ours-TD3"
+    assert main(["curves", str(tmp_path), "--names", names, *out]) == 0
+    # a names file may serve several figures: any method or task of the default tables
+    shared = tmp_path / "names.yaml"
+    shared.write_text("gcnt: Ours\nmetamorph_star: MM*\nCWHH++: CWHH\n")
+    assert main(["curves", str(tmp_path), "--names", str(shared), *out]) == 0
+    shared.write_text("gcnt: Ours\nmetamorph_str: MM*\n")
+    line = error_line(capsys, ["curves", str(tmp_path), "--names", str(shared), *out])
+    assert "--names metamorph_str" in line and "did you mean 'metamorph_star'" in line

@@ -261,3 +261,17 @@ def test_init_from_is_refused_with_resume_and_a_missing_run_is_named(
     missing = str(td3_source) + "x"
     line = error_line(capsys, ["train", str(td3_file), "--init-from", missing])
     assert missing in line and "does not exist" in line and repr(str(td3_source)) in line
+
+
+def test_a_fine_tune_onto_test_robots_says_how_to_drop_them_from_the_test_list(
+    td3_source, td3_file, capsys, tmp_path
+):
+    tests = "env.test_robots=[walker_7_main, hopper_5, walker_2_main]"
+    argv = ["train", str(td3_file), "--init-from", str(td3_source), NEW_ROBOTS, tests]
+    line = error_line(capsys, [*argv, f"run_dir={tmp_path / 'ft'}"])
+    assert "fine-tuning on walker_7_main, which env.test_robots lists" in line
+    assert """'env.test_robots=["hopper_5", "walker_2_main"]'""" in line
+    assert not (tmp_path / "ft").exists()
+    # as the line says: the run starts
+    argv[-1] = 'env.test_robots=["hopper_5", "walker_2_main"]'
+    assert gcnt([*argv, *NO_UPDATE, "eval.episodes=0", f"run_dir={tmp_path / 'ft'}"]) == 0

@@ -191,3 +191,20 @@ def test_a_job_at_its_time_limit_checkpoints_requeues_and_finishes(slurm, tmp_pa
     commands = [line for line in log.splitlines() if line.startswith("# ")]
     assert len(commands) == 2 and "train --resume" in commands[1]
     assert (S.read_record(sw, S.RunSpec(**spec)) or {}).get("attempt") == 2
+
+
+def test_a_plugins_method_benchmark_and_algorithm_train_and_evaluate_on_slurm(slurm, tmp_path):
+    """A plugin named once on the sweep's command line reaches its Slurm jobs: their training
+    and their evaluation processes import it (the runs record it)."""
+    from plugin_helpers import write_plugin
+
+    plugin = write_plugin(tmp_path / "mine")
+    sw = _sweep_dir(tmp_path, "plugin")
+    argv = ["--plugin", str(plugin), "sweep", str(plugin.parent / "recipe.yaml"), "--slurm"]
+    argv += ["--time", "15", "--dir", str(sw), "--eval", "test", "--episodes", "1"]
+    assert main(argv) == 0
+    (spec,) = _manifest(sw)
+    assert spec["state"] == "done" and spec["eval_state"] == {"test": "done"}
+    recorded = yaml.safe_load((Path(spec["run_dir"]) / "recipe.yaml").read_text())
+    assert recorded["plugins"] == [str(plugin)] and recorded["network"]["name"] == "plugnet"
+    assert list((Path(spec["run_dir"]) / "eval").glob("test-*.json"))

@@ -271,3 +271,25 @@ def test_a_moved_or_copied_sweep_works_where_it_is(tmp_path: Path, capsys) -> No
     data["location"] = str(first)
     (copied / S.MANIFEST).write_text(json.dumps(data))
     assert all(Path(r.run_dir).is_relative_to(copied) for r in S.Manifest.load(copied).runs)
+
+
+def test_every_value_of_the_grid_is_checked_when_the_sweep_is_set_up(tmp_path, capsys):
+    """Methods, per-method sizes, robots and the robots evaluated after training: a mistake is
+    one line before any run starts (no manifest written), not a failure per run."""
+    from cli_helpers import error_line
+
+    sw = tmp_path / "sw"
+    argv = ["sweep", str(QUICKSTART), "--dir", str(sw), "--dry-run", *TINY]
+    line = error_line(capsys, [*argv, "--methods", "gcnt,swta"])
+    assert "quickstart.yaml (method swta): network: unknown network 'swta'" in line
+    assert "did you mean 'swat'?" in line
+    line = error_line(capsys, [*argv, "--methods", "gcnt,swat", "swat:network.kwargs.ff=0"])
+    assert "(method swat): network: SWATConfig.ff must be a positive int" in line
+    line = error_line(capsys, [*argv, "env.test_robots=[hopper_3]"])
+    assert "env.robots and env.test_robots both list hopper_3" in line
+    line = error_line(capsys, [*argv, "--eval", "hopper_44"])
+    assert "hopper_44" in line and "did you mean 'hopper_4'" in line
+    line = error_line(capsys, [*argv, "env.test_robots=[]", "--eval", "test"])
+    assert "--eval test: the recipe has no test robots" in line
+    assert not sw.exists()
+    assert main([*argv, "--methods", "gcnt,swat", "--eval", "test"]) == 0

@@ -8,6 +8,9 @@ imported, so ``gcnt --help`` and a misspelt command answer at once (torch is not
 A mistake in what the user gave (a recipe, robot file, override, checkpoint, directory) is one
 line naming the culprit and exit code 2; ``-v`` adds the traceback. A sub-command's options and
 its positional words (recipe, ``key=value`` overrides) may come in any order.
+
+``--plugin MODULE`` (anywhere, repeatable), the variable GCNT_PLUGINS and the ``gcnt.plugins``
+entry points name modules imported before the command runs (:mod:`gcnt.plugins`).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import logging
 import os
 import sys
 
-from gcnt import provenance
+from gcnt import plugins, provenance
 from gcnt.suggest import did_you_mean
 
 #: sub-command name -> (module, one-line help)
@@ -74,6 +77,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ("gcnt.rl.loop", ("TrainingDivergedError",)),
         ("gcnt.rl.evaluate", ("PolicyMismatchError",)),
         ("gcnt.analysis.runs", ("AnalysisError",)),
+        ("gcnt.plugins", ("PluginError",)),
     ):
         mod = sys.modules.get(module)
         errors += [getattr(mod, n) for n in names if mod is not None and hasattr(mod, n)]
@@ -117,11 +121,23 @@ def build_parser(only: str | None) -> argparse.ArgumentParser:
         "on SMPENV and UNIMAL robots.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging, tracebacks")
+    parser.add_argument(
+        "--plugin",
+        action="append",
+        metavar="MODULE",
+        help="import MODULE (my_pkg.methods, or a .py file) before the command runs: the "
+        "methods, benchmarks and algorithms it registers become names every command takes; "
+        "repeatable, anywhere on the line; runs record it (also: GCNT_PLUGINS=a,b and the "
+        "gcnt.plugins entry points)",
+    )
     sub = parser.add_subparsers(
         dest="command", required=True, metavar="COMMAND", parser_class=IntermixedParser
     )
     for name, (module, help_) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
+        p.add_argument(  # taken out of the command line before parsing (see main)
+            "--plugin", action="append", metavar="MODULE", help="import MODULE first (gcnt --help)"
+        )
         if name == only:
             importlib.import_module(module).add_arguments(p)
         p.set_defaults(_module=module)
@@ -144,8 +160,31 @@ def _configure_logging(verbose: bool) -> None:
     logging.getLogger("torchrl").setLevel(level)
 
 
+def _plugin_words(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(``argv`` without its ``--plugin X`` / ``--plugin=X`` words, the plugins named)."""
+    rest, named = [], []
+    words = iter(argv)
+    for word in words:
+        if word == "--plugin":
+            value = next(words, None)
+            if value is None or value.startswith("-"):
+                raise plugins.PluginError("--plugin needs a module name or a .py file")
+            named.append(value)
+        elif word.startswith("--plugin="):
+            named.append(word.split("=", 1)[1])
+        else:
+            rest.append(word)
+    return rest, named
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    given = list(argv)
+    try:
+        argv, named = _plugin_words(argv)
+    except plugins.PluginError as e:
+        print(f"gcnt: error: {e}", file=sys.stderr)
+        return 2
     command = _command_of(argv)
     if command is not None and command not in COMMANDS:
         print(
@@ -154,8 +193,23 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    if command is not None:
+        try:  # before the command's options are built: they may list registered names
+            plugins.start_session(named)
+        except plugins.PluginError as e:
+            if "-v" in argv or "--verbose" in argv:
+                raise
+            print(f"gcnt {command}: error: {_one_line(str(e))}", file=sys.stderr)
+            return 2
+    try:
+        return _run(argv, given, command)
+    finally:
+        plugins.end_session()  # a later command of this process names its own
+
+
+def _run(argv: list[str], given: list[str], command: str | None) -> int:
     args = build_parser(only=command).parse_args(argv)
-    provenance.set_command(["gcnt", *argv])  # the command runs and sweeps record
+    provenance.set_command(["gcnt", *given])  # the command runs and sweeps record
     _configure_logging(args.verbose)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)

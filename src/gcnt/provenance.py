@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import gcnt
+from gcnt import plugins
 from gcnt.files import MiB, read_regular
 
 log = logging.getLogger(__name__)
@@ -59,7 +60,8 @@ def set_command(argv: Sequence[str]) -> None:
 def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None) -> dict[str, Any]:
     """This process's session: gcnt version, git state of ``repo`` (default: the checkout
     holding the gcnt package, if any), Python, package versions, machine, CUDA (when torch is
-    loaded) and ``argv`` (default: the command line) with the working folder."""
+    loaded), ``argv`` (default: the command line) with the working folder, and the plugins
+    imported (:mod:`gcnt.plugins`: each one's file)."""
     git = git_state(repo)
     return {
         "gcnt_version": gcnt.__version__,
@@ -74,6 +76,7 @@ def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None
         "command": list(argv if argv is not None else (_command or sys.argv)),
         "executable": sys.executable,
         "cwd": os.getcwd(),
+        "plugins": plugins.loaded(),
         "started": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
     }
 

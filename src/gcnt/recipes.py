@@ -218,6 +218,11 @@ class Recipe:
     seed: int = 0
     #: cpu | cuda | cuda:N
     device: str = "cpu"
+    #: your own modules (``my_pkg.methods``) or .py files (relative to the recipe file),
+    #: imported before the recipe is read: the methods, benchmarks and algorithms they register
+    #: can be named here (:mod:`gcnt.plugins`). A run records every plugin it was trained with
+    #: (``--plugin``, GCNT_PLUGINS, its ``init_from`` run's)
+    plugins: list[str] = field(default_factory=list)
     #: run directory (default: runs/<task>/<algo>-<network>/seed<seed>)
     run_dir: str | None = None
     #: a trained run directory to start from (fine-tuning): its networks' weights and, for PPO,
@@ -246,6 +251,14 @@ class Recipe:
             section = _build(algorithm_section(self.algo), section or {}, self.algo)
             self.sections[self.algo] = section
         return section
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # a recipe sent to another process (a collector's worker) imports its plugins there
+        self.__dict__.update(state)
+        if state.get("plugins"):
+            from gcnt import plugins
+
+            plugins.load(state["plugins"], via="the recipe")
 
     def __getattr__(self, name: str) -> Any:
         # recipe.td3 / recipe.ppo: the algorithm's section
@@ -426,6 +439,7 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     names = [f.name for f in dataclasses.fields(cls) if f.name not in _INTERNAL]
     is_recipe = cls is Recipe
     if is_recipe:
+        data = _with_plugins(data)  # imported first: they may register the algorithm
         algo = data.get("algo", "td3")
         if not isinstance(algo, str):
             raise RecipeError(f"algo: expected an algorithm name, got {algo!r}")
@@ -463,6 +477,35 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
         except ValueError as e:
             raise RecipeError(f"{where + ': ' if where else ''}{e}") from None
     return obj
+
+
+def _with_plugins(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with its plugins imported: the recipe's own, then those its ``init_from`` run
+    recorded (a fine-tune builds the same method); ``plugins`` lists both."""
+    from gcnt import plugins
+
+    own = _check_type(data.get("plugins", []), list[str], "plugins")
+    source = data.get("init_from")
+    inherited = _recorded_plugins(source) if isinstance(source, str) and source else []
+    if not own and not inherited:
+        return data
+    try:
+        names = plugins.load(own, via="the recipe key plugins")
+        names += plugins.load(inherited, via=f"the init_from run {source}")
+    except plugins.PluginError as e:
+        raise RecipeError(str(e)) from None
+    return {**data, "plugins": list(dict.fromkeys(names))}
+
+
+def _recorded_plugins(run_dir: str) -> list[str]:
+    """The plugins a run directory's recipe records ([] where it cannot be read: the run's own
+    checks name a missing or broken source)."""
+    try:
+        data = yaml.safe_load((Path(run_dir) / "recipe.yaml").read_text()) or {}
+    except (OSError, ValueError, yaml.YAMLError):
+        return []
+    found = data.get("plugins") if isinstance(data, dict) else None
+    return [p for p in found if isinstance(p, str)] if isinstance(found, list) else []
 
 
 #: Recipe fields that are not written as keys of their own
@@ -597,6 +640,7 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
         raise RecipeError(
             f"{path}: not a recipe (none of its top-level keys is a recipe section or setting)"
         )
+    _plugin_paths(data, path)
     base = data.pop("base", None)
     if base is None:
         return data
@@ -606,6 +650,21 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
             f"{'an empty string' if isinstance(base, str) else type(base).__name__}"
         )
     return _merge(_read_yaml(path.parent / base, (*chain, resolved)), data)
+
+
+def _plugin_paths(data: dict[str, Any], path: Path) -> None:
+    """A recipe file's plugin files, relative to the file, made absolute (modules stay)."""
+    from gcnt import plugins
+
+    listed = data.get("plugins")
+    if not isinstance(listed, list):
+        return
+    try:
+        data["plugins"] = [
+            plugins.normalize(p, base=path.parent) if isinstance(p, str) else p for p in listed
+        ]
+    except plugins.PluginError as e:
+        raise RecipeError(f"{path}: plugins: {e}") from None
 
 
 def _yaml_problem(e: yaml.YAMLError) -> str:

@@ -7,9 +7,16 @@ from collections.abc import Iterable
 from pathlib import Path
 
 
-def did_you_mean(name: str, known: Iterable[str], n: int = 3) -> str:
-    """``"; did you mean 'a' or 'b'?"`` for the closest entries of ``known``, or ``""``."""
-    close = difflib.get_close_matches(str(name), [str(k) for k in known], n=n, cutoff=0.5)
+def did_you_mean(name: str, known: Iterable[str], n: int = 3, ignore_case: bool = False) -> str:
+    """``"; did you mean 'a' or 'b'?"`` for the closest entries of ``known``, or ``""``
+    (``ignore_case``: ``GCNT`` is close to ``gcnt``)."""
+    known = [str(k) for k in known]
+    if ignore_case:
+        spelt = {k.lower(): k for k in reversed(known)}
+        lower = difflib.get_close_matches(str(name).lower(), list(spelt), n=n, cutoff=0.5)
+        close = [spelt[k] for k in lower]
+    else:
+        close = difflib.get_close_matches(str(name), known, n=n, cutoff=0.5)
     return f"; did you mean {' or '.join(map(repr, close))}?" if close else ""
 
 

@@ -10,7 +10,10 @@ KEY=NAME`` overrides either.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from gcnt.suggest import did_you_mean
 
 #: registry id -> the name the paper uses (every id of :data:`gcnt.nn.registry.NETWORKS`)
 METHOD_NAMES: dict[str, str] = {
@@ -104,3 +107,30 @@ def set_display_name(
     if len(robots) <= 3:
         return ", ".join(robots)
     return f"{robots[0]}, {robots[1]}, …, {robots[-1]}"
+
+
+def run_keys(runs: Iterable[Any]) -> set[str]:
+    """The methods, labels and tasks of ``runs`` (:class:`gcnt.analysis.runs.Run`): what
+    ``--names`` can name in their figures and tables (see :func:`unknown_names`)."""
+    return {key for r in runs for key in (r.method, r.label, r.task)}
+
+
+def unknown_names(given: Iterable[str], shown: Iterable[str], *, any_known: bool = False) -> str:
+    """The first key of ``given`` that names nothing ``shown`` (a method, task or robot set of
+    this figure or table; also spelt as a folder, ``Walkerpp``, prefixed by an algorithm,
+    ``ppo:gcnt``, or with an addition, ``gcnt [td3.lr=0.001]``), as an error message with the
+    closest keys; "" if each names something. ``any_known``: a key of the default tables
+    (:data:`METHOD_NAMES`, the shipped tasks) passes too (a names file shared by figures)."""
+    shown = set(shown)
+    known = shown | (set(METHOD_NAMES) | set(TASKS) if any_known else set())
+    spelt = known | {s for key in known for s in _folder_spellings(key)}
+    for key in given:
+        base = key.split(" [", 1)[0]
+        if base in spelt or base.partition(":")[2] in spelt:
+            continue
+        listed = ", ".join(sorted(shown)) or "none"
+        return (
+            f"--names {key}: no method, task or robot set here is called {key!r}"
+            f"{did_you_mean(key, known, ignore_case=True)} (names here: {listed})"
+        )
+    return ""

@@ -24,6 +24,7 @@ from typing import Any
 
 import yaml
 
+from gcnt import plugins
 from gcnt.files import MiB, read_regular
 from gcnt.suggest import existing_path
 
@@ -53,7 +54,8 @@ REFERENCE_ORDER = ("sr", "SR-fair", "SR-top")
 #: speed switches that compute the same updates (compiled, CUDA-graphed, threaded, the replay's
 #: device; not ``compile.amp``, whose bfloat16 updates differ). ``resolved`` holds what the run
 #: derived from the other keys, and where a fine-tuned run started (its ``init_from`` record,
-#: which enters as the source run's task and fingerprint instead).
+#: which enters as the source run's task and fingerprint instead); ``plugins``, the code that
+#: defines the names the recipe uses, as gcnt's own code does not enter either.
 NOT_THE_EXPERIMENT = (
     "seed",
     "run_dir",
@@ -74,6 +76,7 @@ NOT_THE_EXPERIMENT = (
     "compile.twin_threads",
     "td3.checkpoint_buffers",
     "resolved",
+    "plugins",
 )
 
 
@@ -536,6 +539,9 @@ def find_runs(paths: Iterable[str | Path]) -> list[Run]:
         raise AnalysisError(
             f"no run directories (with {RECIPE_FILE}) under {', '.join(map(str, paths))}"
         )
+    for run in runs.values():  # what the runs were trained with: their methods, benchmarks...
+        listed = run.recipe.get("plugins") or []
+        plugins.load([p for p in listed if isinstance(p, str)], via=f"the run {run.path}")
     return sorted(runs.values(), key=lambda r: (r.task, method_key(r.method), r.seed, str(r.path)))
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from gcnt.commands.options import add_figure_options, figure_style
+from gcnt.commands.options import add_figure_options, check_names, figure_style
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,11 +44,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from gcnt.analysis import curves as C
+    from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs
 
     if args.points is not None and args.points < 2:
         raise AnalysisError(f"--points must be >= 2, got {args.points}")
     runs = find_runs(args.paths)
+    check_names(args, run_keys(runs))
     rows = C.learning_curves(runs, args.metric, args.points, max(1, args.smooth))
     out = args.out or default_out(args.paths)
     ylabel = C.metric_label(runs, args.metric)

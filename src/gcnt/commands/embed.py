@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from gcnt.commands.options import add_figure_options, figure_style
+from gcnt.commands.options import add_figure_options, check_names, figure_style
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,12 +38,18 @@ def run(args: argparse.Namespace) -> int:
 
     from gcnt.analysis.embed import STRUCTURAL_METHODS, plot_embeddings, run_embedding
     from gcnt.analysis.embed import structural_vectors as vectors
+    from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
 
     embeddings = []
     style = figure_style(args)
+    untrained = (
+        args.untrained if args.untrained is not None else ([] if args.paths else ["gcnt", "swat"])
+    )
+    found = find_runs(args.paths) if args.paths else []
+    check_names(args, {*run_keys(found), *untrained})
     if args.paths:
-        runs = [r for r in find_runs(args.paths) if r.method in STRUCTURAL_METHODS]
+        runs = [r for r in found if r.method in STRUCTURAL_METHODS]
         if not runs and args.untrained is None:
             raise AnalysisError(
                 f"no GCNT or SWAT run in {', '.join(args.paths)} "
@@ -51,9 +57,6 @@ def run(args: argparse.Namespace) -> int:
             )
         for r in runs if args.all_seeds else first_seed_per_method(runs):
             embeddings.append(run_embedding(r, args.robots, style.names))
-    untrained = (
-        args.untrained if args.untrained is not None else ([] if args.paths else ["gcnt", "swat"])
-    )
     for m in untrained:
         torch.manual_seed(args.seed)
         embeddings.append(vectors(m, args.robots, title=f"{style.name(m)} (untrained)"))

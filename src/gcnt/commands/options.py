@@ -65,8 +65,14 @@ def _positive(kind: type):
     return parse
 
 
+class NamesFile(dict):
+    """The display names of a ``--names`` file (a file may serve several figures: its keys
+    need only be known somewhere, see :func:`check_names`)."""
+
+
 def _names(text: str) -> dict[str, str]:
-    """``KEY=NAME[,KEY=NAME...]``, or a YAML/JSON file mapping keys to names."""
+    """``KEY=NAME[,KEY=NAME...]``, or a YAML/JSON file mapping keys to names (a
+    :class:`NamesFile`)."""
     from pathlib import Path
 
     path = Path(text)
@@ -81,7 +87,7 @@ def _names(text: str) -> dict[str, str]:
             isinstance(k, str) and isinstance(v, str | int | float) for k, v in data.items()
         ):
             raise argparse.ArgumentTypeError(f"{text}: not a mapping of ids to display names")
-        return {k: str(v) for k, v in data.items()}
+        return NamesFile({k: str(v) for k, v in data.items()})
     out = {}
     for item in text.split(","):
         key, sep, name = item.partition("=")
@@ -132,6 +138,20 @@ def add_names_option(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> No
         "MetaMorph*, Walker++, ...): metamorph_star=MetaMorph*,gcnt=Ours, or a YAML/JSON file "
         "of them",
     )
+
+
+def check_names(args: argparse.Namespace, shown) -> None:
+    """An error naming the first ``--names`` key that names nothing ``shown`` (the methods,
+    tasks and robot sets of this figure or table, e.g.
+    :func:`gcnt.analysis.names.run_keys`), with the closest keys. A names file's keys may also
+    be any method or task of the default tables."""
+    from gcnt.analysis.names import unknown_names
+    from gcnt.analysis.runs import AnalysisError
+
+    shown = set(shown)
+    for group in args.names or []:
+        if problem := unknown_names(group, shown, any_known=isinstance(group, NamesFile)):
+            raise AnalysisError(problem)
 
 
 def _names_of(args: argparse.Namespace) -> dict[str, str]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from gcnt.commands.options import add_figure_options, figure_style
+from gcnt.commands.options import add_figure_options, check_names, figure_style
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,6 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
     from gcnt.analysis.strobe import strobe_runs
 
@@ -48,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
             f"(got {args.frames}, {args.steps}, {args.min_gap})"
         )
     runs = find_runs(args.paths)
+    check_names(args, run_keys(runs))
     if not args.all_seeds:
         runs = first_seed_per_method(runs)
     out = args.out or default_out(args.paths)

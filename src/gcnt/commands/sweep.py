@@ -290,7 +290,7 @@ def run(args: argparse.Namespace) -> int:
                     stack_seeds=args.stack_seeds,
                 )
     except SweepError as e:
-        log.error("%s", e)
+        print(f"gcnt sweep: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted; run the same command again to resume", file=sys.stderr)

@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from gcnt.commands.options import add_names_option, table_style
+from gcnt.commands.options import add_names_option, check_names, table_style
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,8 +26,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from gcnt import provenance
     from gcnt.analysis.tables import parameter_tables
+    from gcnt.nn.registry import NETWORKS
 
     presets = tuple(s.strip() for s in args.presets.split(",") if s.strip())
+    check_names(args, NETWORKS)  # the tables' rows: every registered method
     md, data = parameter_tables(presets, table_style(args))
     caption = provenance.this_code("tables")  # no runs: the code that computed them
     args.out.mkdir(parents=True, exist_ok=True)

@@ -10,6 +10,7 @@ import json
 import logging
 import sys
 
+from gcnt import plugins
 from gcnt.suggest import existing_path
 
 log = logging.getLogger(__name__)
@@ -88,6 +89,7 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
             run_dir = RunDir(existing_path(args.resume))
             held.enter_context(run_lock(run_dir.path))
             recipe = run_dir.load_recipe(overrides)
+            recipe.plugins = plugins.with_session(recipe.plugins)
             resume = run_dir.has_checkpoint()
             if not resume:
                 log.info("%s has no checkpoint yet: training it from the start", run_dir.path)
@@ -95,6 +97,7 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
             if not args.recipe:
                 raise RecipeError("give a recipe file or --resume RUN_DIR")
             recipe = load_recipe(args.recipe, args.overrides)
+            recipe.plugins = plugins.with_session(recipe.plugins)  # recorded by the run
             own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
             run_dir = RunDir.for_recipe(recipe)
             resume = False
@@ -134,6 +137,7 @@ def _run_seeds(args: argparse.Namespace) -> int:
     if not args.recipe:
         raise RecipeError("--seeds: give a recipe file")
     recipe = load_recipe(args.recipe, args.overrides)
+    recipe.plugins = plugins.with_session(recipe.plugins)  # recorded by the runs
     own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
     runs = train_seeds(seed_recipes(recipe, parse_seeds(args.seeds)))
     for run in runs:

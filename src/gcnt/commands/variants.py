@@ -21,7 +21,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from gcnt.commands.options import add_figure_options, figure_style
+from gcnt.commands.options import add_figure_options, check_names, figure_style
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,11 +55,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from gcnt.analysis import variants as V
+    from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs
 
     stats = ("mean", "iqm") if args.iqm else ("mean",)
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
     runs = find_runs(args.paths)
+    check_names(args, run_keys(runs) | set(sets))
     if args.reps < 1 or not 0 < args.confidence < 1:
         raise AnalysisError(
             f"--reps must be >= 1 and --confidence in (0, 1); got {args.reps}, {args.confidence}"

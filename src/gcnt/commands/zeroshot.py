@@ -15,7 +15,7 @@ import logging
 import subprocess
 from pathlib import Path
 
-from gcnt.commands.options import add_names_option, table_style
+from gcnt.commands.options import add_names_option, check_names, table_style
 
 log = logging.getLogger(__name__)
 
@@ -70,10 +70,12 @@ def _evaluate(runs, episodes: int | None, force: bool) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import default_out, find_runs
     from gcnt.analysis.zeroshot import to_markdown, write, zero_shot_table
 
     runs = find_runs(args.paths)
+    check_names(args, run_keys(runs))
     if args.evaluate and _evaluate(runs, args.episodes, args.force):
         log.error("some evaluations failed (see above)")
         return 1

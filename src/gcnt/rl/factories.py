@@ -6,6 +6,7 @@ widths are read from the env's specs, so nothing here knows a benchmark's number
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from typing import Any
 
@@ -16,7 +17,7 @@ from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from gcnt.envs.benchmark import Benchmark, get_benchmark
 from gcnt.keys import ACTION, HFIELD, OBS
 from gcnt.morphology import Robot
-from gcnt.morphology.catalogues import resolve_robots
+from gcnt.morphology.catalogues import resolve_robots, robot_catalogue, robot_identity
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.registry import make_network
 from gcnt.recipes import Recipe, RecipeError, run_robot_specs
@@ -36,7 +37,36 @@ def train_robots(recipe: Recipe) -> list[Robot]:
     if not recipe.env.robots:
         raise RecipeError("env.robots is empty: name at least one robot to train on")
     robots = resolve_robots(recipe.env.robots, names_from=run_robot_specs(recipe))
-    return check_benchmark(recipe, robots, "env.robots")
+    check_benchmark(recipe, robots, "env.robots")
+    check_apart(recipe, robots)
+    return robots
+
+
+def check_apart(recipe: Recipe, robots: Sequence[Robot]) -> None:
+    """A RecipeError naming the training robots (``robots``) that ``env.test_robots`` lists too:
+    a zero-shot robot is never trained on. A fine-tune (``init_from``) onto test robots is told
+    the test list without them."""
+    if not recipe.env.test_robots:
+        return
+    tests = resolve_robots(recipe.env.test_robots, names_from=run_robot_specs(recipe))
+    trained = {robot_identity(r) for r in robots}
+    tested = {robot_identity(r) for r in tests}
+    both = [r for r in robots if robot_identity(r) in tested]
+    if not both:
+        return
+    names = ", ".join(r.name for r in both)
+    if recipe.init_from:
+        rest = [r for r in tests if robot_identity(r) not in trained]
+        kept = json.dumps([r.name if robot_catalogue(r.name) else r.source for r in rest])
+        raise RecipeError(
+            f"env.robots: fine-tuning on {names}, which env.test_robots lists (a zero-shot "
+            f"robot is never trained on); drop {'it' if len(both) == 1 else 'them'} from the "
+            f"test list: 'env.test_robots={kept}'"
+        )
+    raise RecipeError(
+        f"env.robots and env.test_robots both list {names}: a zero-shot (test) robot is never "
+        "trained on; drop each from one of the lists"
+    )
 
 
 def check_benchmark(recipe: Recipe, robots: Sequence[Robot], where: str) -> list[Robot]:

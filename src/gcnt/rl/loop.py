@@ -67,6 +67,18 @@ def check_network(recipe: Recipe) -> None:
         raise RecipeError(f"network: {e}") from None
 
 
+def check_recipe(recipe: Recipe) -> None:
+    """What a run of ``recipe`` would refuse before building anything: the logger, the network
+    (name, preset, sizes), the benchmark and world, the algorithm, the training and test robots
+    (each known, of the benchmark, the two lists apart) and the robots evaluated at the end. A
+    RecipeError (or a robot error) naming the culprit; ``gcnt sweep`` checks every run so."""
+    check_logger(recipe)
+    check_network(recipe)
+    get_algorithm(recipe.algo)
+    train_robots(recipe)
+    check_eval_robots(recipe, _eval_specs(recipe))  # evaluated at the end: check them first
+
+
 class TrainStats:
     """Episode returns per robot, losses and rates between two log lines."""
 
@@ -122,13 +134,11 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
     here, before anything is written); the derived sizes go to ``recipe.resolved``. A new run
     with ``init_from`` takes over that run's trained networks here (``gcnt.rl.init_from``);
     ``resume``: the run continues its own checkpoint instead."""
-    check_logger(recipe)
-    check_network(recipe)
+    check_recipe(recipe)
     if recipe.compile.torch_threads is not None:
         torch.set_num_threads(recipe.compile.torch_threads)
     seed_everything(recipe.seed)
     robots = train_robots(recipe)
-    check_eval_robots(recipe, _eval_specs(recipe))  # evaluated at the end: check them first
     algo_cls = get_algorithm(recipe.algo)
     env = algo_cls.make_train_env(recipe, robots)
     try:

@@ -95,9 +95,13 @@ def expand(
     seed). With ``per_robot`` (a robot split, see :func:`per_robot_runs`), one run per robot of
     the split, each trained alone.
 
-    Each combination is loaded and validated now, so that a bad recipe or override fails before
-    anything runs (a :class:`SweepError` naming it).
+    Each combination is loaded and checked now as its run would check it before starting
+    (:func:`gcnt.rl.loop.check_recipe`: the method, benchmark, robots, sizes...), and so is each
+    robot spec of ``evals``, so that a mistake fails before anything runs (a :class:`SweepError`
+    naming it). The plugins of this command (``--plugin``, GCNT_PLUGINS) become every run's
+    ``plugins=[...]`` override: its process, here or on a cluster, imports them.
     """
+    from gcnt import plugins
     from gcnt.recipes import RecipeError, read_recipe_file, recipe_from_dict
 
     sweep_dir = Path(sweep_dir).resolve()
@@ -126,14 +130,19 @@ def expand(
             raise SweepError(str(e)) from None
         ms = list(methods or [base.network.name])
         per_method = _split_method_overrides(overrides, ms)
+        imported = plugins.with_session(base.plugins) if plugins.session() else []
+        with_plugins = [f"plugins={json.dumps(imported)}"] if imported else []
         for m in ms:
             for robot, robot_ovr in robots:
                 for s in seeds if seeds is not None else [base.seed]:
-                    given = [*per_method[m], *robot_ovr, f"network.name={m}", f"seed={s}"]
+                    given = [
+                        *per_method[m], *robot_ovr, *with_plugins, f"network.name={m}", f"seed={s}"
+                    ]  # fmt: skip
                     try:
                         r = recipe_from_dict(data, given, source)
                     except RecipeError as e:
                         raise SweepError(str(e)) from None
+                    _check_run(r, source, m, evals)
                     _fine_tune_task(r, missing)
                     spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
                     spec.evals, spec.eval_episodes = list(evals), eval_episodes
@@ -142,6 +151,24 @@ def expand(
     if not specs:
         raise SweepError("the sweep has no runs (no recipes?)")
     return specs
+
+
+def _check_run(r: Recipe, source: str, method: str, evals: Sequence[str]) -> None:
+    """What the run of ``r`` (method ``method`` of recipe ``source``) would refuse when it
+    starts, and the robots its evaluations ``evals`` name: a SweepError naming the recipe."""
+    from gcnt.rl.evaluate import check_eval_robots
+    from gcnt.rl.loop import check_recipe
+
+    try:
+        check_recipe(r)
+        for spec in evals:
+            if spec == "test" and not r.env.test_robots:
+                raise ValueError("--eval test: the recipe has no test robots (env.test_robots)")
+            if spec == "train":
+                continue
+            check_eval_robots(r, r.env.test_robots if spec == "test" else [spec])
+    except (ValueError, OSError) as e:  # RecipeError, the robot errors, a missing file
+        raise SweepError(f"{source} (method {method}): {e}") from None
 
 
 def _fine_tune_task(r: Recipe, missing: set[str]) -> None:
