@@ -9,12 +9,14 @@ STAMP  := $(VENV)/.gcnt-installed
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+# The versions gcnt is tested with: constraints.txt (pyproject.toml states the ranges it accepts).
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	# torch first and pinned: the CPU wheel; an unpinned torch would pull GBs of CUDA packages.
-	$(BIN)/pip install -q torch==2.13.0
-	$(BIN)/pip install -q -e ".[dev]"
+	# torch first and pinned (constraints.txt: torch==2.13.0): the CPU wheel; an unpinned torch
+	# would pull GBs of CUDA packages.
+	$(BIN)/pip install -q -c constraints.txt torch
+	$(BIN)/pip install -q -c constraints.txt -e ".[dev]"
 	touch $(STAMP)
 
 train: $(STAMP)

@@ -1,7 +1,9 @@
 """Import gcnt before any test module imports torch, so the tests run with the OpenMP settings
 ``gcnt`` chooses (torch reads them once, when it loads). Also the command-line tests' tiny run:
-``recipe_file`` (a module may override it) and ``trained``, built once per module."""
+``recipe_file`` (a module may override it) and ``trained``, built once per module. The tests
+read and write robot sets in a folder of their own, never the user's (``GCNT_MORPHOLOGIES``)."""
 
+import os
 from pathlib import Path
 
 import pytest
@@ -9,6 +11,19 @@ from cli_helpers import tiny_td3_recipe
 
 import gcnt  # noqa: F401
 from gcnt.cli import main as gcnt_cli
+from gcnt.data_folders import MORPHOLOGIES_ENV
+
+
+@pytest.fixture(scope="session", autouse=True)
+def own_robot_sets(tmp_path_factory):
+    """The user's robot-set folder, for the whole session (and the processes it starts)."""
+    old = os.environ.get(MORPHOLOGIES_ENV)
+    os.environ[MORPHOLOGIES_ENV] = str(tmp_path_factory.mktemp("user-robot-sets"))
+    yield
+    if old is None:
+        os.environ.pop(MORPHOLOGIES_ENV, None)
+    else:
+        os.environ[MORPHOLOGIES_ENV] = old
 
 
 @pytest.fixture(scope="module")

@@ -74,28 +74,28 @@ def test_every_help_prints(command, capsys):
 def test_bench_train_defaults_to_the_quick_start(tmp_path, monkeypatch):
     from gcnt.commands.bench_train import recipe_and_overrides
 
-    monkeypatch.chdir(ROOT)
+    quickstart = str(ROOT / "recipes/quickstart.yaml")  # the packaged one, from any folder
+    monkeypatch.chdir(tmp_path)
     args = build_parser(only="bench-train").parse_args(["bench-train"])
-    assert recipe_and_overrides(args.recipe, args.overrides) == ("recipes/quickstart.yaml", [])
+    assert recipe_and_overrides(args.recipe, args.overrides) == (quickstart, [])
     args = build_parser(only="bench-train").parse_args(["bench-train", "a.b=1", "c=2"])
-    assert recipe_and_overrides(args.recipe, args.overrides) == (
-        "recipes/quickstart.yaml",
-        ["a.b=1", "c=2"],
-    )
+    assert recipe_and_overrides(args.recipe, args.overrides) == (quickstart, ["a.b=1", "c=2"])
     assert recipe_and_overrides("R.yaml", ["a=1"]) == ("R.yaml", ["a=1"])
-    # outside the repository: the checkout's quick start, by its full path
-    monkeypatch.chdir(tmp_path)
-    recipe, overrides = recipe_and_overrides(None, ["a=1"])
-    assert Path(recipe) == ROOT / "recipes/quickstart.yaml" and overrides == ["a=1"]
 
 
-def test_no_default_recipe_outside_a_checkout_is_one_line(tmp_path, monkeypatch):
-    import gcnt.recipes as recipes
+def test_packaged_recipes_by_name_from_any_folder(tmp_path, monkeypatch):
+    from gcnt.recipes import RecipeError, find_recipe, load_recipe, packaged_recipe_names
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(recipes, "__file__", str(tmp_path / "site-packages/gcnt/recipes.py"))
-    with pytest.raises(recipes.RecipeError, match="pass a recipe file"):
-        recipes.default_recipe()
+    walker = ROOT / "recipes/smpenv/walker.yaml"
+    for spec in ("smpenv/walker", "smpenv/walker.yaml", "recipes/smpenv/walker.yaml"):
+        assert find_recipe(spec) == walker
+    assert "quickstart" in packaged_recipe_names() and "smpenv/_td3" not in packaged_recipe_names()
+    assert load_recipe("quickstart").task == load_recipe(ROOT / "recipes/quickstart.yaml").task
+    (tmp_path / "quickstart.yaml").write_text("seed: 3\nbase: " + str(ROOT / "recipes/quickstart.yaml"))
+    assert find_recipe("quickstart.yaml") == Path("quickstart.yaml")  # a file of the user's wins
+    with pytest.raises(RecipeError, match="did you mean 'smpenv/walker'"):
+        find_recipe("smpenv/walkr")
 
 
 # ------------------------------------------------------------------ run directories

@@ -304,12 +304,12 @@ def test_benchmark_file_errors_name_the_culprit(tmp_path):
         load_benchmarks(bad)
 
 
-def test_morphologies_dir_override(tmp_path, monkeypatch):
-    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(tmp_path))
-    assert morphologies_dir() == tmp_path
-    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(tmp_path / "missing"))
-    with pytest.raises(FileNotFoundError, match="GCNT_MORPHOLOGIES"):
-        morphologies_dir()
+def test_the_user_folder_adds_to_the_packaged_robots(tmp_path, monkeypatch):
+    packaged = morphologies_dir()
+    assert (packaged / "smpenv.yaml").is_file()
+    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(tmp_path))  # an empty user folder
+    assert morphologies_dir() == packaged
+    assert "Walker++" in load_benchmarks()
 
 
 def test_robots_command(tmp_path, monkeypatch, capsys):
@@ -323,12 +323,12 @@ def test_robots_command(tmp_path, monkeypatch, capsys):
     shutil.copytree(morphologies_dir(), copy)
     (copy / "smpenv" / "hopper_4.xml").write_text(build_mjcf("hopper_4").replace("200", "201"))
     (copy / "smpenv" / "walker_2_main.xml").unlink()
-    monkeypatch.setenv("GCNT_MORPHOLOGIES", str(copy))
     capsys.readouterr()
-    assert cli_main(["robots", "--check", "--catalogue", "smpenv"]) == 1
+    check = ["robots", "--check", "--catalogue", "smpenv", "--out", str(copy)]
+    assert cli_main(check) == 1
     out = capsys.readouterr().out
     assert "hopper_4.xml" in out and "walker_2_main.xml: missing" in out
-    assert cli_main(["robots", "--rebuild", "--catalogue", "smpenv"]) == 0
-    assert cli_main(["robots", "--check", "--catalogue", "smpenv"]) == 0
+    assert cli_main(["robots", "--rebuild", "--catalogue", "smpenv", "--out", str(copy)]) == 0
+    assert cli_main(check) == 0
     assert cli_main(["robots", "walker_9"]) == 2
     assert "walker_" in capsys.readouterr().err

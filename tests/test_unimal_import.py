@@ -15,8 +15,8 @@ from cli_helpers import ROOT, error_line
 from tensordict import TensorDict
 
 from gcnt.cli import main as gcnt
+from gcnt.data_folders import MORPHOLOGIES_ENV
 from gcnt.morphology.catalogues import (
-    MORPHOLOGIES_ENV,
     load_benchmarks,
     morphologies_dir,
     refresh_catalogues,
@@ -81,11 +81,9 @@ def _zip(folder: Path, path: Path, skip: str | None = None, extra=()) -> Path:
 
 @pytest.fixture
 def morph(tmp_path, monkeypatch) -> Path:
-    """A morphologies folder of its own (the checked-in files linked in), read by gcnt."""
+    """A robot-set folder of its own, read by gcnt beside its own robots."""
     folder = tmp_path / "morphologies"
     folder.mkdir()
-    for entry in morphologies_dir().iterdir():
-        (folder / entry.name).symlink_to(entry)
     monkeypatch.setenv(MORPHOLOGIES_ENV, str(folder))
     refresh_catalogues()
     yield folder
@@ -135,12 +133,38 @@ def test_a_folder_feeds_a_unimal_recipe_and_its_env(unimals, morph):
     env.close()
 
 
-def test_another_name_and_out_folder(unimals, morph, tmp_path, capsys):
+def test_another_name_and_out_folder(unimals, morph, tmp_path, capsys, monkeypatch):
     other = tmp_path / "elsewhere"
     assert gcnt(["import-unimal", str(unimals), "--name", "Paper", "--out", str(other)]) == 0
     assert f"GCNT_MORPHOLOGIES={other}" in capsys.readouterr().out
     assert (other / "Paper" / "catalogue.yaml").is_file()
-    assert "Paper" not in load_benchmarks()  # gcnt reads its own morphologies folder only
+    assert "Paper" not in load_benchmarks()  # gcnt reads the user's folder only
+    # as it advises: the set is added to gcnt's own robots, which stay
+    monkeypatch.setenv(MORPHOLOGIES_ENV, str(other))
+    refresh_catalogues()
+    benchmarks = load_benchmarks()
+    assert benchmarks["Paper"]["test"] == FAKE["test"]
+    assert {"Walker++", "CWHH++", "Unimal"} <= set(benchmarks)
+    assert gcnt(["robots", "Paper:test", "walker_7_main"]) == 0
+
+
+def test_the_user_folder_is_the_default_and_may_be_relative(unimals, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv(MORPHOLOGIES_ENV)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    imported = import_unimals(unimals)
+    assert imported.folder == tmp_path / "xdg" / "gcnt" / "morphologies" / "Unimal100"
+    assert load_benchmarks()["Unimal100"]["test"] == FAKE["test"]
+    assert not (morphologies_dir() / "Unimal100").exists()  # never into gcnt's own folder
+    # a relative GCNT_MORPHOLOGIES reads as the absolute folder it names
+    monkeypatch.setenv(MORPHOLOGIES_ENV, "sets")
+    assert gcnt(["import-unimal", str(unimals), "--name", "Rel"]) == 0
+    assert (tmp_path / "sets" / "Rel" / "catalogue.yaml").is_file()
+    assert load_benchmarks()["Rel"]["train"] == FAKE["train"]
+    assert [r.name for r in resolve_robots(["Rel:test", "walker_7_main"])] == [
+        *FAKE["test"],
+        "walker_7_main",
+    ]
 
 
 def _set_without(unimals: Path, tmp_path: Path, folder: str) -> Path:

@@ -22,6 +22,7 @@ import logging
 import os
 import sys
 
+import gcnt
 from gcnt import plugins, provenance
 from gcnt.suggest import did_you_mean
 
@@ -130,6 +131,7 @@ def build_parser(only: str | None) -> argparse.ArgumentParser:
         "repeatable, anywhere on the line; runs record it (also: GCNT_PLUGINS=a,b and the "
         "gcnt.plugins entry points)",
     )
+    parser.add_argument("--version", action="version", version=f"gcnt {gcnt.__version__}")
     sub = parser.add_subparsers(
         dest="command", required=True, metavar="COMMAND", parser_class=IntermixedParser
     )

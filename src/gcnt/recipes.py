@@ -675,37 +675,60 @@ def _yaml_problem(e: yaml.YAMLError) -> str:
     return f"{problem}{where}"
 
 
-#: the recipe the benchmark commands use when none is given
-QUICKSTART = "recipes/quickstart.yaml"
+#: the recipe the benchmark commands use when none is given (one that ships with gcnt)
+QUICKSTART = "quickstart"
 
 
-def default_recipe(relative: str = QUICKSTART) -> str:
-    """A recipe of the repository's ``recipes/`` folder, as a path that works from any folder:
-    ``relative`` itself when the current folder holds it (a command run from the repository
-    root prints the short path), else the same file in the checkout gcnt was installed from
-    (``pip install -e .``: the package sits in ``<checkout>/src/gcnt``). A RecipeError when
-    neither exists (gcnt installed from a wheel, which holds no recipes)."""
-    if Path(relative).is_file():
-        return relative
-    checkout = Path(__file__).resolve().parents[2]
-    candidate = checkout / relative
-    if candidate.is_file():
-        return str(candidate)
-    raise RecipeError(
-        f"no recipe given and {relative} is neither in the current folder nor in a gcnt "
-        f"checkout ({checkout}); pass a recipe file"
+def packaged_recipe_names() -> list[str]:
+    """The recipes that ship with gcnt, by name (``quickstart``, ``smpenv/walker``, ...); the
+    bases of other recipes (``_td3.yaml``) are left out."""
+    from gcnt.data_folders import packaged_recipes
+
+    root = packaged_recipes()
+    return sorted(
+        p.relative_to(root).with_suffix("").as_posix()
+        for p in root.rglob("*.yaml")
+        if not p.name.startswith("_")
     )
+
+
+def find_recipe(spec: str | Path) -> Path:
+    """The recipe file ``spec`` names: a path to a file, or else a recipe that ships with gcnt,
+    by its name (``quickstart``, ``smpenv/walker``), with ``.yaml`` or not, or as the checkout
+    writes it (``recipes/smpenv/walker.yaml``, which thus works from any folder). A RecipeError
+    names ``spec`` and the closest recipe names otherwise."""
+    from gcnt.data_folders import packaged_recipes
+
+    path = Path(spec)
+    if path.exists() or path.is_absolute():
+        return path
+    name = path.as_posix().removeprefix("./").removeprefix("recipes/")
+    for candidate in (name, f"{name}.yaml"):
+        packaged = packaged_recipes() / candidate
+        if candidate.endswith(".yaml") and packaged.is_file():
+            return packaged
+    names = packaged_recipe_names()
+    raise RecipeError(
+        f"{spec}: no such recipe file, nor a recipe that ships with gcnt"
+        f"{did_you_mean(name.removesuffix('.yaml'), names)} (gcnt's recipes: {', '.join(names)})"
+    )
+
+
+def default_recipe(name: str = QUICKSTART) -> str:
+    """The path of a recipe that ships with gcnt (the benchmark commands' default)."""
+    return str(find_recipe(name))
 
 
 def read_recipe_file(path: str | Path) -> dict[str, Any]:
     """A recipe file's mapping with its bases merged in, not yet validated (``load_recipe`` is
-    ``recipe_from_dict(read_recipe_file(path), overrides, source=path)``)."""
-    path = Path(path)
+    ``recipe_from_dict(read_recipe_file(path), overrides, source=path)``). ``path`` may name a
+    recipe that ships with gcnt (:func:`find_recipe`)."""
+    path = find_recipe(path)
     data = _read_yaml(path)
     if not data:
         raise RecipeError(
             f"{path}: the recipe is empty; it must say at least what to train on (env.robots), "
-            "e.g. start from recipes/quickstart.yaml or write base: <a recipe>"
+            "e.g. start from gcnt's quickstart recipe or write base: <a recipe>"
         )
     return data
 
@@ -713,10 +736,11 @@ def read_recipe_file(path: str | Path) -> dict[str, Any]:
 def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     """Load a recipe file, apply ``section.key=value`` overrides, validate everything.
 
-    A recipe may start from another with ``base: relative/path.yaml``; its keys override the
-    base's, section by section.
+    ``path`` is a recipe file, or the name of a recipe that ships with gcnt (:func:`find_recipe`:
+    ``quickstart``, ``smpenv/walker``). A recipe may start from another with
+    ``base: relative/path.yaml``; its keys override the base's, section by section.
     """
-    return recipe_from_dict(read_recipe_file(path), overrides, source=str(path))
+    return recipe_from_dict(read_recipe_file(path), overrides, source=str(find_recipe(path)))
 
 
 def load_run_recipe(

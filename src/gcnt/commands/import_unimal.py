@@ -9,8 +9,10 @@ gcnt import-unimal unimals_100.zip          # -> Unimal100:train, :test, :varian
 gcnt robots Unimal100:test                  # its robots and their statistics
 gcnt train recipes/unimal/ft_unimal100.yaml  # UNIMAL FT on the paper's robots
 
-``--out DIR`` imports into another morphologies folder (gcnt reads it when ``GCNT_MORPHOLOGIES``
-points there). See ``gcnt.morphology.unimal.imported`` for the layout it reads and writes.
+The set goes into the user's robot-set folder (``$GCNT_MORPHOLOGIES``, default
+``~/.local/share/gcnt/morphologies``), read beside the robots that ship with gcnt; ``--out DIR``
+imports into another folder (gcnt reads it when ``GCNT_MORPHOLOGIES`` points there). See
+``gcnt.morphology.unimal.imported`` for the layout it reads and writes.
 """
 
 from __future__ import annotations
@@ -39,12 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=Path,
         default=None,
-        help="the morphologies folder to import into (default: the one gcnt reads, "
-        "$GCNT_MORPHOLOGIES or the repository's morphologies/)",
+        help="the robot-set folder to import into (default: the one gcnt reads, "
+        "$GCNT_MORPHOLOGIES or ~/.local/share/gcnt/morphologies)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcnt.data_folders import user_morphologies
     from gcnt.morphology.unimal.imported import import_unimals
 
     print(f"checking every robot file of {args.path} ...", flush=True)
@@ -61,16 +64,6 @@ def run(args: argparse.Namespace) -> int:
         f"use them as env.robots: ['{imported.name}:train'], "
         f"env.test_robots: ['{imported.name}:test'] (recipes/unimal/ft_unimal100.yaml)"
     )
-    if args.out is not None and imported.folder.parent.resolve() != _read_folder():
+    if imported.folder.parent != user_morphologies():
         print(f"gcnt reads them where GCNT_MORPHOLOGIES={imported.folder.parent}")
     return 0
-
-
-def _read_folder() -> Path | None:
-    """The morphologies folder gcnt reads (None: there is none)."""
-    from gcnt.morphology.catalogues import morphologies_dir
-
-    try:
-        return morphologies_dir().resolve()
-    except FileNotFoundError:
-        return None

@@ -6,7 +6,7 @@ gcnt robots ~/unimals_100/train/xml   a folder of (MetaMorph) robot files
 gcnt robots Unimal100:test         the paper's UNIMAL-100 robots, once `gcnt import-unimal` ran
 gcnt robots path/to/ant.xml        any robot file: its family (read from its structure) and limbs
 gcnt robots --rebuild [--out D]    regenerate every catalogue's files (into D/<catalogue>/...)
-gcnt robots --check                exit 1 unless the checked-in files equal a regeneration
+gcnt robots --check [--out D]      exit 1 unless gcnt's robot files (or D's) equal a regeneration
 gcnt robots --generate 20 --seed 500 --out D   20 new UNIMAL robots (seeds 500-519) into D
 Add ``--catalogue smpenv`` (or unimal) to rebuild or check one catalogue only.
 """
@@ -66,8 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=Path,
         default=None,
-        help="--rebuild: the morphologies folder to write (default: the checked-in one); "
-        "--generate: the folder for the new files (required)",
+        help="--rebuild, --check: the robot folder to write or check (default: the one that "
+        "ships with gcnt, in a checkout its morphologies/); --generate: the folder for the new "
+        "files (required)",
     )
 
 
@@ -86,8 +87,8 @@ def _rebuild(out: Path | None, catalogue: str | None) -> int:
     return 0
 
 
-def _check(catalogue: str | None) -> int:
-    root = morphologies_dir()
+def _check(out: Path | None, catalogue: str | None) -> int:
+    root = out if out is not None else morphologies_dir()
     problems: list[str] = []
     for name in _selected(catalogue):
         cat = get_catalogue(name)
@@ -207,14 +208,14 @@ UNIMAL_NOTE = (
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.out is not None and not (args.rebuild or args.generate is not None):
-        log.error("--out only applies to --rebuild and --generate")
+    if args.out is not None and not (args.rebuild or args.check or args.generate is not None):
+        log.error("--out only applies to --rebuild, --check and --generate")
         return 2
     try:
         if args.rebuild:
             return _rebuild(args.out, args.catalogue)
         if args.check:
-            return _check(args.catalogue)
+            return _check(args.out, args.catalogue)
         if args.generate is not None:
             return _generate(args.generate, args.seed, args.out)
         return _list(list(args.specs))

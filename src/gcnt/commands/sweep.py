@@ -160,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.items:
         log.error("give recipe files or a sweep directory (see gcnt sweep --help)")
         return 2
+    from gcnt.recipes import RecipeError, find_recipe
     from gcnt.sweep import (
         ACTIVE,
         MANIFEST,
@@ -192,6 +193,10 @@ def run(args: argparse.Namespace) -> int:
                     r.eval_episodes = args.episodes
                     r.eval_deterministic = args.eval_deterministic
         else:
+            try:  # a recipe file, or one that ships with gcnt by name
+                recipes = [str(find_recipe(r)) for r in recipes]
+            except RecipeError as e:
+                raise SweepError(str(e)) from None
             bad = [r for r in recipes if not Path(r).is_file()]
             if bad:
                 raise SweepError(f"no such recipe file: {', '.join(bad)}")

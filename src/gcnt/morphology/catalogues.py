@@ -12,8 +12,9 @@ A split file maps a benchmark name to its splits: ``train`` (required), ``test``
 ``variants-<kind>`` lists. Names, ``Benchmark:split`` specs, ``.xml`` paths and folders of ``.xml``
 files resolve through every catalogue (:func:`resolve_robots`).
 
-Robot and split files live in the repository's ``morphologies/`` folder, or wherever the
-environment variable ``GCNT_MORPHOLOGIES`` points.
+The built-in catalogues' robot and split files ship with gcnt (:func:`morphologies_dir`); robot
+sets of the user's own (``gcnt import-unimal``) live in the user's folder
+(:func:`gcnt.data_folders.user_morphologies`, ``$GCNT_MORPHOLOGIES``) and are added to them.
 """
 
 from __future__ import annotations
@@ -32,12 +33,11 @@ from typing import Any
 
 import yaml
 
+from gcnt.data_folders import packaged_morphologies, user_morphologies
 from gcnt.morphology.robot import Robot, load_robot
 from gcnt.morphology.smpenv import SMPENV_ROBOTS, build_mjcf, write_all
 from gcnt.suggest import did_you_mean
 
-#: Environment variable that overrides the location of the ``morphologies/`` folder.
-MORPHOLOGIES_ENV = "GCNT_MORPHOLOGIES"
 #: The SMPENV benchmark split file inside the morphologies folder.
 SMPENV_BENCHMARKS_FILE = "smpenv.yaml"
 #: The two main splits; ``Benchmark:all`` in :func:`resolve_robots` means train + test.
@@ -62,15 +62,13 @@ class BenchmarkFileError(ValueError):
 
 
 def morphologies_dir() -> Path:
-    """``$GCNT_MORPHOLOGIES`` if set, else the repository's ``morphologies/`` folder."""
-    env = os.environ.get(MORPHOLOGIES_ENV)
-    path = Path(env) if env else Path(__file__).resolve().parents[3] / "morphologies"
+    """The folder of the robot files and split files that ship with gcnt (in a checkout, its
+    ``morphologies/``)."""
+    path = packaged_morphologies()
     if not path.is_dir():
-        where = f"${MORPHOLOGIES_ENV}={env}" if env else "the repository's morphologies/ folder"
         raise FileNotFoundError(
-            f"morphologies folder {path} ({where}) does not exist; set {MORPHOLOGIES_ENV} to the "
-            "folder that holds smpenv.yaml and smpenv/*.xml (run `gcnt robots --rebuild` to "
-            "regenerate the robot files)"
+            f"gcnt's robot folder {path} does not exist: this installation of gcnt is incomplete "
+            "(reinstall it; in a checkout, `gcnt robots --rebuild` regenerates the robot files)"
         )
     return path
 
@@ -146,17 +144,14 @@ IMPORTED_INDEX = "catalogue.yaml"
 
 
 def imported_catalogues(root: Path | None = None) -> dict[str, Path]:
-    """Catalogues imported into the morphologies folder ``root`` (default: the one gcnt reads):
-    name -> folder. Hidden folders (an import under way) are left out, and so is a folder whose
-    robot or benchmark names are already those of a catalogue before it (a backup copy of an
-    imported folder, say), with a warning naming both folders."""
-    if root is None:
-        try:
-            root = morphologies_dir()
-        except FileNotFoundError:
-            return {}
-    found = sorted(root.glob(f"*/{IMPORTED_INDEX}"))
-    return _usable_imports(tuple(p.parent for p in found if not p.parent.name.startswith(".")))
+    """Catalogues imported into the morphologies folder ``root`` (default: the ones gcnt reads,
+    its own and then the user's, :func:`gcnt.data_folders.user_morphologies`): name -> folder.
+    Hidden folders (an import under way) are left out, and so is a folder whose robot or
+    benchmark names are already those of a catalogue before it (a backup copy of an imported
+    folder, say), with a warning naming both folders."""
+    roots = [root] if root is not None else [packaged_morphologies(), user_morphologies()]
+    found = [p.parent for r in roots for p in sorted(Path(r).absolute().glob(f"*/{IMPORTED_INDEX}"))]
+    return _usable_imports(tuple(p for p in found if not p.name.startswith(".")))
 
 
 def split_keys(path: Path | None) -> list[str]:

@@ -8,7 +8,8 @@ each holding ``xml/<robot>.xml`` (the MuJoCo file), ``metadata/<robot>.json`` an
 ``unimal_init/<robot>.pkl`` (DERL's evolution records). A robot's split is the folder it is in.
 
 :func:`import_unimals` reads that folder or the archive itself, checks every robot file (it must
-load as a UNIMAL robot), and writes the catalogue folder ``<name>/`` into the morphologies folder:
+load as a UNIMAL robot), and writes the catalogue folder ``<name>/`` into the user's robot-set
+folder (``$GCNT_MORPHOLOGIES``, default ``~/.local/share/gcnt/morphologies``) or ``--out``:
 
 * ``<name>/<set>/xml/<robot>.xml``: MetaMorph's files, byte for byte (gcnt reads neither the
   metadata nor the pickles, so they are not copied);
@@ -36,6 +37,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
+from gcnt.data_folders import user_morphologies
 from gcnt.files import read_regular
 from gcnt.morphology.catalogues import (
     IMPORTED_INDEX,
@@ -43,7 +45,6 @@ from gcnt.morphology.catalogues import (
     catalogue_names,
     get_catalogue,
     imported_catalogues,
-    morphologies_dir,
     refresh_catalogues,
 )
 from gcnt.morphology.robot import MAX_ROBOT_FILE_BYTES, Robot, RobotFileError, robot_from_xml
@@ -318,10 +319,11 @@ def split_yaml(name: str, source: str, splits: dict[str, list[str]]) -> str:
 def import_unimals(
     path: str | Path, name: str = DEFAULT_NAME, out: Path | None = None
 ) -> ImportedSet:
-    """Import MetaMorph's set at ``path`` as the catalogue ``name`` into the morphologies folder
-    ``out`` (default: the one gcnt reads). Every file is checked before the folder appears: a
-    bad file is a one-line error naming it, and nothing is left behind."""
-    out = Path(out) if out is not None else morphologies_dir()
+    """Import MetaMorph's set at ``path`` as the catalogue ``name`` into the robot-set folder
+    ``out`` (default: the user's, :func:`gcnt.data_folders.user_morphologies`). Every file is
+    checked before the folder appears: a bad file is a one-line error naming it, and nothing is
+    left behind."""
+    out = Path(os.path.abspath(out)) if out is not None else user_morphologies()
     defined = defined_in(out)
     check_name(name, out, defined)
     out.mkdir(parents=True, exist_ok=True)
@@ -370,8 +372,9 @@ def _check_unique(member: Member, origin: dict[str, str], robots: dict[str, str]
 
 
 def imported_catalogue(folder: Path) -> Catalogue:
-    """The catalogue of an imported folder (see the module doc)."""
-    folder = Path(folder)
+    """The catalogue of an imported folder (see the module doc); a relative ``folder`` is taken
+    from the current folder, as an absolute path."""
+    folder = Path(os.path.abspath(folder))
 
     def robot_names() -> list[str]:
         return [p.stem for s in SETS for p in sorted((folder / s / "xml").glob("*.xml"))]

@@ -1,0 +1,98 @@
+"""gcnt as a package: a wheel built from the checkout, installed into a new virtual environment
+outside it, runs its commands from any folder with the robots and recipes it ships, and keeps the
+user's robot sets in the user's data folder.
+
+The new environment takes gcnt from the wheel and every other package from the environment that
+runs the tests (a ``.pth`` line after its own site-packages), so the test needs no network."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import venv
+from pathlib import Path
+
+import pytest
+from cli_helpers import ROOT, TINY_SWEEP_OVERRIDES
+
+import gcnt
+
+#: what a build of the package reads from the checkout
+SOURCES = ("pyproject.toml", "README.md", "LICENSE", "src", "recipes", "morphologies")
+
+
+def _build_wheel(tmp_path: Path) -> Path:
+    """The wheel of a copy of the checkout (a build writes build/ and *.egg-info beside it)."""
+    copy = tmp_path / "checkout"
+    copy.mkdir()
+    for name in SOURCES:
+        src = ROOT / name
+        if src.is_dir():
+            ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc")
+            shutil.copytree(src, copy / name, symlinks=True, ignore=ignore)
+        else:
+            shutil.copy(src, copy / name)
+    wheels = tmp_path / "wheels"
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    build = [*pip, "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-w", str(wheels)]
+    subprocess.run([*build, str(copy)], check=True, cwd=tmp_path, capture_output=True)
+    (wheel,) = wheels.glob("gcnt-*.whl")
+    return wheel
+
+
+def _venv_with(wheel: Path, where: Path) -> Path:
+    """A new virtual environment with gcnt installed from ``wheel``; its ``bin/`` folder."""
+    venv.create(where, with_pip=False)
+    python = where / "bin" / "python"
+    purelib = subprocess.run(
+        [python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    shared = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
+    Path(purelib, "shared-packages.pth").write_text("\n".join(sorted(shared)) + "\n")
+    install = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    install += ["--python", str(python), "install", "--no-deps", "--no-index", str(wheel)]
+    subprocess.run(install, check=True, capture_output=True)
+    return where / "bin"
+
+
+@pytest.mark.slow
+def test_a_wheel_runs_robots_train_and_eval_outside_the_checkout(tmp_path):
+    wheel = _build_wheel(tmp_path)
+    bin_ = _venv_with(wheel, tmp_path / "venv")
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "GCNT_MORPHOLOGIES")}
+    env |= {"XDG_DATA_HOME": str(tmp_path / "xdg"), "WANDB_MODE": "disabled"}
+
+    def gcnt_(*argv: str) -> str:
+        done = subprocess.run(
+            [bin_ / "gcnt", *argv], cwd=work, env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, (argv, done.stderr[-2000:])
+        return done.stdout
+
+    where = subprocess.run(
+        [bin_ / "python", "-c", "import gcnt; print(gcnt.__file__)"],
+        cwd=work, env=env, capture_output=True, text=True, check=True,
+    ).stdout
+    assert where.startswith(str(tmp_path / "venv")), where  # the wheel's gcnt, not the checkout's
+    assert gcnt_("--version").strip() == f"gcnt {gcnt.__version__}"
+    listing = gcnt_("robots")
+    assert "Walker++:train" in listing and "Unimal:test" in listing
+    tiny = [*TINY_SWEEP_OVERRIDES, "collector.total_frames=220", "logger.backend=none"]
+    gcnt_("train", "quickstart", *tiny, "run_dir=by-name")
+    # a recipe file of the user's, starting from a packaged one by its path
+    packaged = Path(where).parent / "data" / "recipes" / "quickstart.yaml"
+    assert packaged.is_file()
+    (work / "mine.yaml").write_text(f"base: {packaged}\nseed: 3\n")
+    gcnt_("train", "mine.yaml", *tiny, "run_dir=by-path")
+    out = gcnt_("eval", "by-name", "--robots", "test", "--episodes", "1")
+    assert "hopper_4" in out
+    assert (work / "by-path" / "checkpoints" / "last.pt").is_file()
+    assert not (tmp_path / "xdg").exists()  # nothing written to the user's data folder
