@@ -71,8 +71,9 @@ def test_repeated_robots_fail_loudly():
 
 def test_folders_and_splits(tmp_path):
     for name in ("walker_2_main", "cheetah_2_back"):
-        shutil.copy(morphologies_dir() / "smpenv" / f"{name}.xml", tmp_path / f"{name}.xml")
-    assert [r.name for r in resolve_robots([str(tmp_path)])] == ["cheetah_2_back", "walker_2_main"]
+        shutil.copy(morphologies_dir() / "smpenv" / f"{name}.xml", tmp_path / f"my_{name}.xml")
+    names = [r.name for r in resolve_robots([str(tmp_path)])]
+    assert names == ["my_cheetah_2_back", "my_walker_2_main"]
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(UnknownRobotError, match="no .xml"):

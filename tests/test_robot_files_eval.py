@@ -141,7 +141,7 @@ def test_a_run_evaluates_every_2d_file_with_real_episodes_and_reports_their_leng
     robots = out["robots"]
     assert len(robots) == out["over_robots"]["robots"] == len(FILES_2D)  # both hoppers
     if HAS_GYM:
-        assert {"suite.hopper", "assets.hopper"} <= set(robots)
+        assert {"suite.hopper", "mujoco.hopper"} <= set(robots)
     for name, r in robots.items():
         assert {"mean", "stderr", "episodes", "returns"} <= set(r)  # the keys kept
         assert SHORT_EPISODE_STEPS <= r["length_min"] <= r["length_mean"] <= 100, name
@@ -187,6 +187,28 @@ def test_robot_files_of_one_model_name_are_two_robots(tmp_path, capsys):
     assert "suite.hopper" in rows and "mine.hopper" in rows
 
 
+def test_a_robot_file_has_one_name_whatever_else_is_listed(tmp_path):
+    def names(*specs) -> list[str]:
+        return [r.name for r in resolve_robots([str(s) for s in specs])]
+
+    smpenv = ROOT / "morphologies" / "smpenv"
+    mine = tmp_path / "mine" / "xml" / "hopper_3.xml"  # a copy of a catalogue robot's file
+    mine.parent.mkdir(parents=True)
+    shutil.copy(smpenv / "hopper_3.xml", mine)
+    # named apart from the catalogue's hopper_3 whether that is listed or not; the folder "xml"
+    # tells nothing apart and is skipped
+    assert names(mine) == ["mine.hopper_3"]
+    assert names(mine, "hopper_3", "hopper_4") == ["mine.hopper_3", "hopper_3", "hopper_4"]
+    assert names(smpenv / "hopper_3.xml") == ["hopper_3"]  # the catalogue robot's own file
+    # two files of one name: the nearest folder that tells them apart, generic ones skipped
+    other = tmp_path / "other" / "xml" / "hopper_3.xml"
+    other.parent.mkdir(parents=True)
+    shutil.copy(smpenv / "hopper_3.xml", other)
+    assert names(mine, other) == ["mine.hopper_3", "other.hopper_3"]
+    # a catalogue's file listed by its path is named as the catalogue names it
+    assert names(DMC / "humanoid.xml") == names("dmc_humanoid") == ["dmc_humanoid"]
+
+
 def test_the_same_robot_listed_twice_is_still_refused():
     hopper = str(DMC / "hopper.xml")
     with pytest.raises(DuplicateRobotError, match="'hopper' is listed twice.*env.copies"):
@@ -216,7 +238,7 @@ eval: {{episodes: 1}}
 """)  # fmt: skip
     assert gcnt(["train", str(recipe), f"run_dir={tmp_path / 'run'}"]) == 0
     final = sorted((tmp_path / "run" / "eval").glob("step*.json"))[-1]
-    assert set(json.loads(final.read_text())["robots"]) == {"suite.humanoid", "assets.humanoid"}
+    assert set(json.loads(final.read_text())["robots"]) == {"dmc_humanoid", "gym_humanoid"}
 
 
 # ------------------------------------------------------------------ the refusal comes first
@@ -250,10 +272,10 @@ def test_a_robot_file_keeps_one_name_in_training_its_evaluation_and_analysis(tmp
     assert gcnt(["train", str(recipe), f"run_dir={tmp_path / 'run'}"]) == 0
     run = Run(tmp_path / "run")
     trained = {k.split("/", 1)[-1] for row in run.metrics() for k in row}
-    assert "assets.hopper" in trained
+    assert "mujoco.hopper" in trained
     final = sorted((tmp_path / "run" / "eval").glob("step*.json"))[-1]
-    assert set(json.loads(final.read_text())["robots"]) == {"assets.hopper", "suite.hopper"}
-    assert run.train_robot_names() == ["assets.hopper"]
+    assert set(json.loads(final.read_text())["robots"]) == {"mujoco.hopper", "suite.hopper"}
+    assert run.train_robot_names() == ["mujoco.hopper"]
     assert run.test_robot_names() == ["suite.hopper"]
     # another file of the name, evaluated later, is named apart from the run's own robots
     other = tmp_path / "mine" / "hopper.xml"

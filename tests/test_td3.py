@@ -170,7 +170,7 @@ def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
     run = RunDir(run_dir)
     run.create(recipe)
     train(recipe, run)
-    unseen = tmp_path / "walker_6_main.xml"
+    unseen = tmp_path / "my_walker.xml"
     shutil.copy(morphologies_dir() / "smpenv" / "walker_6_main.xml", unseen)
     out = tmp_path / "eval.json"
     assert (
@@ -190,9 +190,9 @@ def test_eval_on_a_robot_file_never_seen_in_training(tmp_path, capsys):
         == 0
     )
     results = json.loads(out.read_text())["robots"]
-    assert set(results) == {"walker_6_main", "hopper_4"}
-    assert results["walker_6_main"]["episodes"] == 3
-    assert "walker_6_main" in capsys.readouterr().out
+    assert set(results) == {"my_walker", "hopper_4"}
+    assert results["my_walker"]["episodes"] == 3
+    assert "my_walker" in capsys.readouterr().out
 
 
 def test_misspelt_recipe_key_fails_with_a_clear_message(capsys):

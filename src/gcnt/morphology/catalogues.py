@@ -93,6 +93,9 @@ class Catalogue:
     #: problems of the catalogue's files under a morphologies folder (empty: all current)
     check: Callable[[Path], list[str]] | None = None
     description: str = ""
+    #: the catalogue's robot files whose robot name is not the file's name: resolved path ->
+    #: robot name (such a file listed by its path is named as the catalogue names it)
+    file_names: Callable[[], dict[str, str]] | None = None
 
     def split_path(self) -> Path | None:
         if self.split_file is None:
@@ -113,6 +116,7 @@ _BUILTIN: dict[str, str] = {
 def _clear_caches() -> None:
     _usable_imports.cache_clear()
     _name_index.cache_clear()
+    _file_index.cache_clear()
     _load.cache_clear()
     _read_benchmarks.cache_clear()
 
@@ -150,7 +154,9 @@ def imported_catalogues(root: Path | None = None) -> dict[str, Path]:
     benchmark names are already those of a catalogue before it (a backup copy of an imported
     folder, say), with a warning naming both folders."""
     roots = [root] if root is not None else [packaged_morphologies(), user_morphologies()]
-    found = [p.parent for r in roots for p in sorted(Path(r).absolute().glob(f"*/{IMPORTED_INDEX}"))]
+    found = [
+        p.parent for r in roots for p in sorted(Path(r).absolute().glob(f"*/{IMPORTED_INDEX}"))
+    ]
     return _usable_imports(tuple(p for p in found if not p.name.startswith(".")))
 
 
@@ -232,6 +238,17 @@ def _name_index() -> dict[str, str]:
                 )
             index[name] = cat.name
     return index
+
+
+@functools.lru_cache(maxsize=1)
+def _file_index() -> dict[str, str]:
+    """Resolved path -> catalogue robot name, for the files of :attr:`Catalogue.file_names`."""
+    return {
+        path: name
+        for cat in catalogues()
+        if cat.file_names
+        for path, name in cat.file_names().items()
+    }
 
 
 def _is_pattern(spec: str) -> bool:
@@ -434,36 +451,72 @@ def robot_identity(robot: Robot) -> tuple[str, ...]:
     return (robot.name,)
 
 
+#: folder names that say what a folder holds, not whose files they are: never a name's prefix
+GENERIC_FOLDERS = frozenset(
+    {"xml", "xmls", "mjcf", "assets", "asset", "robots", "robot", "models", "model", "files",
+     "data", "morphologies"}
+)  # fmt: skip
+
+
+def _folders(path: Path) -> list[str]:
+    """The folders of ``path`` (absolute, as given: a link keeps the folder it is listed in),
+    nearest first, the generic ones (:data:`GENERIC_FOLDERS`) left out."""
+    parts = Path(os.path.abspath(path)).parent.parts[1:]
+    return [p for p in reversed(parts) if p.lower() not in GENERIC_FOLDERS]
+
+
 def _names_by_folder(paths: Sequence[Path], taken: set[str]) -> list[str]:
-    """Distinct names for robot files that share a name: each file's stem after the fewest of
-    its folders that tell them apart, joined by dots (``suite.hopper``, ``assets.hopper``), and
-    none of the names in ``taken``. Stem and folders both come from the file's absolute path as
-    given (a link keeps the name it is listed under)."""
-    full = [Path(os.path.abspath(p)) for p in paths]
-    folders = [p.parent.parts[1:] for p in full]
-    names = [p.stem for p in full]
-    for k in range(1, max(map(len, folders)) + 1):
-        names = [".".join((*f[-k:], p.stem)) for f, p in zip(folders, full, strict=True)]
-        if len(set(names)) == len(names) and not taken.intersection(names):
-            break
+    """Distinct names for robot files that share a name, none of them in ``taken``: each file's
+    stem after its folder at the nearest depth where the files' folders all differ
+    (``suite.hopper``, ``mujoco.hopper``; generic folder names such as ``xml`` or ``assets``
+    skipped: they tell nothing apart), else after several of its nearest folders, joined by
+    dots."""
+    folders = [_folders(p) for p in paths]
+    stems = [Path(os.path.abspath(p)).stem for p in paths]
+    depth = max(map(len, folders), default=0)
+
+    def apart(names: list[str]) -> bool:
+        return len(set(names)) == len(names) and not taken.intersection(names)
+
+    names = stems
+    for d in range(depth):
+        names = [f"{f[d]}.{s}" if d < len(f) else s for f, s in zip(folders, stems, strict=True)]
+        if apart(names):
+            return names
+    for k in range(2, depth + 1):
+        names = [".".join((*reversed(f[:k]), s)) for f, s in zip(folders, stems, strict=True)]
+        if apart(names):
+            return names
     return names
+
+
+def _is_catalogue_robot(robot: Robot) -> bool:
+    """Whether ``robot`` (read from a file) is the catalogue robot of its name (its own file)."""
+    if robot_catalogue(robot.name) is None:
+        return False
+    try:
+        return robot_identity(load_named(robot.name)) == robot_identity(robot)
+    except (ValueError, OSError):
+        return False
 
 
 def _name_apart(
     robots: list[Robot], from_file: list[bool], fixed: dict[str, Robot] | None = None
 ) -> list[Robot]:
     """``robots`` (distinct) with the robots read from files that share a name with another
-    robot (of ``robots``, or a name of ``fixed``: robots already named) renamed after their
-    folders (see :func:`_names_by_folder`); catalogue robots keep their names. Names that still
-    clash are a DuplicateRobotError naming both files."""
+    robot (of ``robots``, of a catalogue, listed or not, or a name of ``fixed``: robots already
+    named) renamed after their folders (see :func:`_names_by_folder`); catalogue robots and
+    their own files keep their names. Names that still clash are a DuplicateRobotError naming
+    both files."""
     fixed = fixed or {}
     groups: dict[str, list[int]] = {}
     for i, r in enumerate(robots):
         groups.setdefault(r.name, []).append(i)
     out, taken = list(robots), set(groups) | set(fixed)
     for name, idx in groups.items():
-        files = [i for i in idx if from_file[i]]
-        if not files or (len(idx) < 2 and name not in fixed):
+        files = [i for i in idx if from_file[i] and not _is_catalogue_robot(robots[i])]
+        shared = len(idx) > 1 or name in fixed or robot_catalogue(name) is not None
+        if not files or not shared:
             continue
         new = _names_by_folder([Path(robots[i].source) for i in files], taken)
         for i, n in zip(files, new, strict=True):
@@ -506,6 +559,8 @@ def _resolve_each(specs: Sequence[str], *, repeats: bool) -> tuple[list[Robot], 
                     f"(a spec is a robot name, an .xml path or folder, or one of "
                     f"{', '.join(b + ':train|test' for b in benchmarks)})"
                 )
+        if is_file:  # a catalogue's file whose robot has another name: that name
+            found = [_as_catalogue_robot(r) for r in found]
         for r in found:
             key = robot_identity(r)
             if key in origin:
@@ -521,6 +576,17 @@ def _resolve_each(specs: Sequence[str], *, repeats: bool) -> tuple[list[Robot], 
             robots.append(r)
             from_file.append(is_file)
     return robots, from_file
+
+
+def _as_catalogue_robot(robot: Robot) -> Robot:
+    """``robot`` (read from a file) as its catalogue's robot, where a catalogue names its file
+    otherwise (:attr:`Catalogue.file_names`: dm_control's ``suite/humanoid.xml`` is
+    ``dmc_humanoid``)."""
+    name = _file_index().get(os.path.realpath(robot.source))
+    if name is None or name == robot.name:
+        return robot
+    known = load_named(name)
+    return known if robot_identity(known) == robot_identity(robot) else robot
 
 
 def _names_of(specs: Sequence[str]) -> dict[tuple[str, ...], Robot]:

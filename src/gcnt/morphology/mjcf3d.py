@@ -20,6 +20,7 @@ robots and dm_control's humanoid to train on, converted UNIMAL test robots to ev
 from __future__ import annotations
 
 import importlib.util
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -54,6 +55,13 @@ def robot_file(name: str) -> Path | None:
     """The file of a package robot ``name`` (None: its package is not installed)."""
     package, rel = PACKAGE_ROBOTS[name]
     return package_file(package, rel)
+
+
+def file_names() -> dict[str, str]:
+    """The package robots' files (resolved) -> their names: dm_control's ``suite/humanoid.xml``
+    listed by its path is ``dmc_humanoid`` too."""
+    files = {name: robot_file(name) for name in PACKAGE_ROBOTS}
+    return {os.path.realpath(f): name for name, f in files.items() if f is not None and f.is_file()}
 
 
 def _unimal_names() -> list[str]:
@@ -127,5 +135,6 @@ MJCF3D_CATALOGUE = Catalogue(
     split_file=SPLIT_FILE,
     rebuild=write_files,
     check=check_files,
+    file_names=file_names,
     description="general 3-D robots: dm_control's and gymnasium's files, UNIMAL robots read as 3-D",
 )
