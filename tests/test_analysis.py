@@ -165,18 +165,38 @@ def test_zero_shot_prefers_more_episodes_then_says_what_is_missing(tmp_path: Pat
         zeroshot.zero_shot_table([Run(empty)])
 
 
+def _with_provenance(sweep: Path) -> str:
+    """The caption of the sweep's runs, one of which records the code it ran (commit abc1234)."""
+    from gcnt import provenance
+
+    runs = find_runs([sweep])
+    session = {"gcnt_version": "0.1.0", "git_commit": "abc1234" + "0" * 33, "git_dirty": False}
+    provenance.add_session(runs[0].path, session)
+    expected = "runs from gcnt 0.1.0 at commit abc1234 (1 run); provenance not recorded (5 runs)"
+    assert provenance.caption(r.path for r in runs) == expected
+    return expected
+
+
 def test_zeroshot_command(sweep: Path, capsys) -> None:
+    caption = _with_provenance(sweep)
     assert main(["zeroshot", str(sweep), "--out", str(sweep / "t")]) == 0
     strict = {"parse_constant": lambda c: pytest.fail(f"non-strict JSON: {c}")}
     data = json.loads((sweep / "t" / "zeroshot.json").read_text(), **strict)
     assert set(data["Walker++"]["cells"]) == set(TEST)
-    assert "walker_3_main" in (sweep / "t" / "zeroshot.md").read_text()
+    md = (sweep / "t" / "zeroshot.md").read_text()
+    assert "walker_3_main" in md and md.rstrip().endswith(f"_{caption}_")
+    assert (sweep / "t" / "zeroshot.caption.txt").read_text() == caption + "\n"
+    assert f"% {caption}" in (sweep / "t" / "zeroshot.tex").read_text()
+    assert caption in capsys.readouterr().out
 
 
 def test_variants_command(sweep: Path) -> None:
+    caption = _with_provenance(sweep)
     assert (
         main(["variants", str(sweep), "--sets", "test", "--iqm", "--profile", "--reps", "200"]) == 0
     )
+    assert (sweep / "figures" / "variants.caption.txt").read_text() == caption + "\n"
+    assert (sweep / "figures" / "variants.md").read_text().rstrip().endswith(f"_{caption}_")
     data = json.loads((sweep / "figures" / "variants.json").read_text())
     assert set(data["test"]) == {"gcnt", "swat", "amorpheus"}
     est = data["test"]["gcnt"]["mean"]

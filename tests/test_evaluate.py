@@ -1,6 +1,6 @@
 """Tests for ``gcnt.rl.evaluate`` and ``gcnt eval``: ``summarize_robots`` gives the mean over
-robots with a bootstrap 95% confidence interval around it, collapsing to the value itself for a
-single robot; evaluation and metrics files are strict JSON (non-finite values as ``null``, read
+robots with a bootstrap 95% confidence interval around it from 5 robots, below that their range,
+each under fields named for it; evaluation and metrics files are strict JSON (non-finite values as ``null``, read
 back as NaN); ``gcnt eval`` and the evaluations a sweep runs follow the recipe's
 ``eval.deterministic`` unless a flag says otherwise.
 """
@@ -15,7 +15,13 @@ def test_summarize_robots_bootstrap_ci():
     s = summarize_robots(res)
     assert s["mean"] == pytest.approx(4.0) and s["robots"] == 5
     assert s["ci95_low"] < 4.0 < s["ci95_high"]
-    assert summarize_robots({"a": {"mean": 2.0}})["ci95_low"] == 2.0
+
+
+def test_fewer_robots_than_a_bootstrap_needs_store_their_range_named_so():
+    s = summarize_robots({"a": {"mean": 2.0}, "b": {"mean": 5.0}, "c": {"mean": 3.0}})
+    assert s == {"mean": pytest.approx(10 / 3), "range_low": 2.0, "range_high": 5.0, "robots": 3}
+    one = summarize_robots({"a": {"mean": 2.0}})
+    assert (one["range_low"], one["range_high"], "ci95_low" in one) == (2.0, 2.0, False)
 
 
 def _strict(text: str):

@@ -123,7 +123,9 @@ def test_ppo_trains_through_gcnt_train(benchmark, tmp_path, capsys):
     assert "95% CI [" in printed or "range [" in printed
     out = json.loads(out_path.read_text())
     assert out["deterministic"] is False
-    assert {"mean", "ci95_low", "ci95_high"} <= set(out["over_robots"])
+    over = out["over_robots"]  # the fields named for the interval printed
+    interval = ("ci95_low", "ci95_high") if "95% CI [" in printed else ("range_low", "range_high")
+    assert {"mean", *interval} <= set(over)
 
 
 def test_kl_stop_is_checked_before_each_step_and_skips_the_rest_of_the_iteration(tmp_path):
@@ -364,3 +366,32 @@ def test_kl_thresholds_per_method_and_world_follow_table_5():
             r = load_recipe(ROOT / f"recipes/unimal/{world}.yaml", [f"network.name={method}"])
             assert r.ppo.kl_threshold(method) == kl, (world, method)
             assert r.env.world == world and r.env.benchmark == "unimal"
+
+
+def test_the_python_api_shows_progress_and_keeps_torchrl_info_out(tmp_path):
+    """``train()`` called from Python with no logging set up (a notebook, a script) shows its
+    progress and final evaluation on stderr; torchrl's info lines (a storage initialised) do
+    not reach stdout or stderr."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "import gcnt\n"
+        "from test_ppo import tiny_recipe\n"
+        "from gcnt.rl.loop import train\n"
+        "from gcnt.rl.run_dir import RunDir\n"
+        f"recipe = tiny_recipe({str(tmp_path / 'run')!r})\n"
+        "run = RunDir(recipe.run_dir)\n"
+        "run.create(recipe)\n"
+        "train(recipe, run)\n"
+    )
+    env = {k: v for k, v in __import__("os").environ.items() if k != "RL_LOGGING_LEVEL"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "[torchrl]" not in done.stdout + done.stderr
+    assert "env_steps 80" in done.stderr and "finished" in done.stderr
+    assert "final evaluation hopper_3 (training robot):" in done.stderr

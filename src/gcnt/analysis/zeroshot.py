@@ -228,15 +228,20 @@ def to_latex(table: dict[str, Any], style: FigureStyle | None = None) -> str:
 
 
 def write(
-    table: dict[str, Any], out: Path, stem: str = "zeroshot", style: FigureStyle | None = None
+    table: dict[str, Any],
+    out: Path,
+    stem: str = "zeroshot",
+    style: FigureStyle | None = None,
+    caption: str | None = None,
 ) -> tuple[Path, Path, Path]:
     """``<stem>.md``, ``<stem>.tex`` and ``<stem>.json`` (strict JSON: a missing standard error
-    is ``null``; methods by their ids)."""
+    is ``null``; methods by their ids). ``caption`` (the code of the runs,
+    :func:`gcnt.provenance.caption`) ends the Markdown and the LaTeX (as a comment)."""
     from gcnt.rl.run_dir import strict_json
 
     out.mkdir(parents=True, exist_ok=True)
     md, tex, js = out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.json"
-    md.write_text(to_markdown(table, style))
-    tex.write_text(to_latex(table, style))
+    md.write_text(to_markdown(table, style) + (f"\n_{caption}_\n" if caption else ""))
+    tex.write_text(to_latex(table, style) + (f"% {caption}\n" if caption else ""))
     js.write_text(json.dumps(strict_json(table), indent=1, allow_nan=False))
     return md, tex, js

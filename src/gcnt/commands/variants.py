@@ -12,8 +12,9 @@ bars, one panel per set (:mod:`gcnt.analysis.bars`); ``--panels`` also writes th
 (point estimates with intervals, ``--profile``: and performance profiles) as
 ``variants-panels.png``. ``--iqm`` adds the interquartile mean. Writes ``variants.png``
 (``--format pdf,svg``: those; the figure options set size, fonts, title and display names; a
-robot name pattern as a set is shown as the robots it matched), ``variants.md`` and
-``variants.json``.
+robot name pattern as a set is shown as the robots it matched), ``variants.md``,
+``variants.json`` and ``variants.caption.txt``: the gcnt versions and commits of the runs (also
+the last line of the Markdown).
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcnt import provenance
     from gcnt.analysis import variants as V
     from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs
@@ -76,13 +78,16 @@ def run(args: argparse.Namespace) -> int:
     if args.panels or args.profile:
         V.plot(summary, out / f"{args.name}-panels.png", stats, args.profile, style)
         figures += style.outputs(out / f"{args.name}-panels.png")
+    caption = provenance.caption(r.path for r in runs)
     md = out / f"{args.name}.md"
-    md.write_text(V.to_markdown(summary, stats, style))
+    md.write_text(f"{V.to_markdown(summary, stats, style)}\n_{caption}_\n")
     js = V.write_json(summary, out / f"{args.name}.json")
     print(V.to_markdown(summary, stats, style))
     missing = [s for s in sets if s not in summary]
     if missing:
         print(f"no evaluations for: {', '.join(missing)}")
-    for path in [*figures, md, js]:
+    print(caption)
+    cap = provenance.write_caption(caption, out / f"{args.name}.caption.txt")
+    for path in [*figures, md, js, cap]:
         print(f"written: {path}")
     return 0

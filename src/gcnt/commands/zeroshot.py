@@ -4,8 +4,9 @@ Per test robot, mean ± 1 standard error over seeds of each seed's mean return; 
 mean in bold where its interval lies above the runner-up's; each table says which protocol (deterministic or sampled actions, episodes per
 robot) its numbers come from. Reads the runs' evaluations (``eval/*.json``); ``--evaluate`` first
 runs ``gcnt eval RUN --robots test`` (the recipe's protocol; ``--episodes N``) on every run that
-has none. Writes ``zeroshot.md``, ``zeroshot.tex`` (methods by display name: ``--names``) and
-``zeroshot.json``.
+has none. Writes ``zeroshot.md``, ``zeroshot.tex`` (methods by display name: ``--names``),
+``zeroshot.json`` and ``zeroshot.caption.txt``: the gcnt versions and commits of the runs (also
+the last line of the Markdown and a comment of the LaTeX).
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ def _evaluate(runs, episodes: int | None, force: bool) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcnt import provenance
     from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import default_out, find_runs
     from gcnt.analysis.zeroshot import to_markdown, write, zero_shot_table
@@ -82,8 +84,10 @@ def run(args: argparse.Namespace) -> int:
     table = zero_shot_table(runs, args.robots, args.label)
     out = args.out or default_out(args.paths)
     style = table_style(args)
-    written = write(table, out, style=style)
+    caption = provenance.caption(r.path for r in runs)
+    written = write(table, out, style=style, caption=caption)
     print(to_markdown(table, style))
-    for path in written:
+    print(caption)
+    for path in [*written, provenance.write_caption(caption, out / "zeroshot.caption.txt")]:
         print(f"written: {path}")
     return 0

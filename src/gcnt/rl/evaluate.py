@@ -236,22 +236,19 @@ def format_table(results: dict[str, dict]) -> str:
     lines = [f"{'robot':<{width}}  {'return':>10}  {'± s.e.':>8}  episodes  length (mean, min)"]
     for name, r in results.items():
         length = f"{r['length_mean']:.1f}, {r['length_min']}" if "length_mean" in r else "-"
-        lines.append(
-            f"{name:<{width}}  {r['mean']:>10.1f}  {r['stderr']:>8.1f}  {r['episodes']:>8}  "
-            f"{length}"
-        )
+        se = f"{r['stderr']:>8.1f}" if r["episodes"] > 1 else f"{'-':>8}"  # none of one episode
+        lines.append(f"{name:<{width}}  {r['mean']:>10.1f}  {se}  {r['episodes']:>8}  {length}")
     if len(results) > 1:
-        from gcnt.analysis.intervals import MIN_BOOTSTRAP
-
         s = summarize_robots(results)
-        if s["robots"] >= MIN_BOOTSTRAP:
+        if "ci95_low" in s:
             interval = (
                 f"95% CI [{s['ci95_low']:.1f}, {s['ci95_high']:.1f}] "
                 f"(bootstrap over n = {s['robots']} robots)"
             )
-        else:  # too few robots for a bootstrap CI: their range, called so
-            means = [r["mean"] for r in results.values()]
-            interval = f"range [{min(means):.1f}, {max(means):.1f}] over n = {s['robots']} robots"
+        else:
+            interval = (
+                f"range [{s['range_low']:.1f}, {s['range_high']:.1f}] over n = {s['robots']} robots"
+            )
         lines.append(
             f"{'mean over ' + str(s['robots']) + ' robots':<{width}}  {s['mean']:>10.1f}  "
             + interval
@@ -260,13 +257,20 @@ def format_table(results: dict[str, dict]) -> str:
 
 
 def summarize_robots(results: dict[str, dict], *, resamples: int = 2000, seed: int = 0) -> dict:
-    """The mean over robots of their mean returns, with a 95% bootstrap confidence interval
-    (percentile method, resampling robots; one robot: the interval is its mean)."""
+    """The mean over robots of their mean returns, and around it, named for what it is: a 95%
+    bootstrap confidence interval (percentile method, resampling robots; ``ci95_low``,
+    ``ci95_high``) over at least :data:`~gcnt.analysis.intervals.MIN_BOOTSTRAP` robots, else
+    the range of their means (``range_low``, ``range_high``; one robot: its mean)."""
     from scipy.stats import bootstrap
+
+    from gcnt.analysis.intervals import MIN_BOOTSTRAP
 
     x = np.array([r["mean"] for r in results.values()], dtype=np.float64)
     mean = float(x.mean())
-    if len(x) < 2 or np.all(x == x[0]):
+    if len(x) < MIN_BOOTSTRAP:
+        low, high = (float(x.min()), float(x.max())) if len(x) else (mean, mean)
+        return {"mean": mean, "range_low": low, "range_high": high, "robots": len(x)}
+    if np.all(x == x[0]):
         low = high = mean
     else:
         ci = bootstrap(

@@ -13,12 +13,14 @@ Every collected environment step is counted (``env_steps``), over all robots.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
@@ -160,8 +162,46 @@ def train(
 ) -> RunDir:
     """Train per ``recipe`` into ``run`` (continuing its checkpoint when ``resume``).
 
-    ``prepared`` is :func:`prepare`'s result for this recipe (built here when not given).
+    ``prepared`` is :func:`prepare`'s result for this recipe (built here when not given). Called
+    from Python without logging set up for gcnt, it shows its progress lines on stderr all the
+    same, and torchrl's info lines stay out (:func:`console_output`).
     """
+    with console_output():
+        return _train(recipe, run, resume, prepared)
+
+
+@contextlib.contextmanager
+def console_output() -> Iterator[None]:
+    """What a run shows when its caller set up no logging (the Python API, a notebook), for its
+    duration: gcnt's info lines (progress, evaluations, the summary) on stderr, and torchrl's
+    info lines left out. Whatever the caller chose wins: a level or handler set on the ``gcnt``
+    logger, a handler that already shows its info lines (``logging.basicConfig(level=INFO)``, the
+    ``gcnt`` command), a level set for torchrl (``RL_LOGGING_LEVEL``)."""
+    gcnt_log = logging.getLogger("gcnt")
+    own = gcnt_log.level == logging.NOTSET and not gcnt_log.handlers
+    own = own and not gcnt_log.isEnabledFor(logging.INFO)
+    torchrl_log = logging.getLogger("torchrl")
+    torchrl_level = torchrl_log.level
+    saved = (gcnt_log.level, gcnt_log.propagate)
+    handler = logging.StreamHandler()
+    if own:
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        gcnt_log.addHandler(handler)
+        gcnt_log.setLevel(logging.INFO)
+        gcnt_log.propagate = False  # not twice through a handler of the root logger
+    if "RL_LOGGING_LEVEL" not in os.environ and torchrl_level < logging.WARNING:
+        torchrl_log.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        if own:
+            gcnt_log.removeHandler(handler)
+            gcnt_log.setLevel(saved[0])
+            gcnt_log.propagate = saved[1]
+        torchrl_log.setLevel(torchrl_level)
+
+
+def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None) -> RunDir:
     prepared = prepared or prepare(recipe, resume=resume)
     robots, env, algo = prepared.robots, prepared.env, prepared.algo
     t0 = time.perf_counter()
@@ -217,7 +257,9 @@ def train(
             return run
     train_s = time.perf_counter() - t0
     results = finish(recipe, run, algo, logger, env_steps)
-    log_summary(run, env_steps - start, train_s, time.perf_counter() - t0, results)
+    log_summary(
+        run, env_steps - start, train_s, time.perf_counter() - t0, results, [r.name for r in robots]
+    )
     return run
 
 
@@ -230,10 +272,17 @@ def progress_bar(recipe: Recipe, total: int, env_steps: int) -> tqdm:
 
 
 def log_summary(
-    run: RunDir, env_steps: int, train_s: float, wall_s: float, results: dict | None
+    run: RunDir,
+    env_steps: int,
+    train_s: float,
+    wall_s: float,
+    results: dict | None,
+    train_robots: Iterable[str] = (),
 ) -> None:
     """The end of training in a few lines: wall time, env steps/s (while training, the final
-    evaluation left out), final evaluation per robot."""
+    evaluation left out), final evaluation per robot, each marked as a training robot (one of
+    ``train_robots``) or a test robot; a standard error only where there are several
+    episodes."""
     log.info(
         "finished %s: %d env steps, wall time %.1f min, %.0f env steps/s",
         run.path,
@@ -241,13 +290,16 @@ def log_summary(
         wall_s / 60,
         env_steps / max(train_s, 1e-9),
     )
+    trained = set(train_robots)
     for name, r in (results or {}).items():
+        spread = f" ± {r['stderr']:.1f}" if r["episodes"] > 1 else ""
         log.info(
-            "final evaluation %s: %.1f ± %.1f (%d episodes)",
+            "final evaluation %s (%s): %.1f%s (%s)",
             name,
+            "training robot" if name in trained else "test robot",
             r["mean"],
-            r["stderr"],
-            r["episodes"],
+            spread,
+            f"{r['episodes']} episode{'s' if r['episodes'] != 1 else ''}",
         )
 
 

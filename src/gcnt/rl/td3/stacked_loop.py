@@ -178,4 +178,5 @@ def _lockstep(
     for i in range(n):
         with rng.active(i):
             results = finish(recipes[i], runs[i], algos[i], loggers[i], env_steps[i])
-        log_summary(runs[i], env_steps[i], train_s, time.perf_counter() - t0, results)
+        trained = [r.name for r in prepared[i].robots]
+        log_summary(runs[i], env_steps[i], train_s, time.perf_counter() - t0, results, trained)
