@@ -29,3 +29,23 @@ def test_the_report_is_not_mixed_with_training_log_lines(recipe_file, caplog, ca
     assert "ratio to the bare update" in out and "share of the time spent in updates" in out
     # the level is restored afterwards: other commands in the process log as before
     assert logging.getLogger("gcnt").level <= logging.INFO
+
+
+def test_the_profiler_lines_stay_out_of_the_report():
+    """torch's profiler writes ``USDT: ... profiler_start`` lines to file descriptor 2 whenever
+    ``count_launches`` profiles; they are left out, anything else written there is kept."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, torch\n"
+        "from gcnt.commands.bench_train import count_launches\n"
+        "def fn():\n"
+        "    os.write(2, b'a line of the update\\n')\n"
+        "    return torch.ones(3) + 1\n"
+        "print(count_launches(fn))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout) >= 1
+    assert done.stderr == "a line of the update\n"

@@ -395,3 +395,4 @@ def test_the_python_api_shows_progress_and_keeps_torchrl_info_out(tmp_path):
     assert "[torchrl]" not in done.stdout + done.stderr
     assert "env_steps 80" in done.stderr and "finished" in done.stderr
     assert "final evaluation hopper_3 (training robot):" in done.stderr
+    assert "nan" not in done.stderr  # no spread of one episode

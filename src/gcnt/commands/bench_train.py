@@ -28,10 +28,15 @@ overhead, not by arithmetic.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
+import os
+import re
+import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from gcnt.recipes import QUICKSTART, default_recipe
@@ -153,6 +158,34 @@ def count_flops(fn) -> tuple[int, object]:
     return counter.get_total_flops(), out
 
 
+#: the lines torch's profiler (kineto) writes to the process's stderr whenever it starts and
+#: stops, e.g. ``USDT:2026-01-01 10:00:00 123:123 SyncActivityProfilerHandler.cpp:52]
+#: profiler_start``
+PROFILER_LINE = re.compile(r"^(USDT|STAGE):\d{4}-\d\d-\d\d [\d:.]+ \d+:\d+ \w+\.cpp:\d+\] ")
+
+
+@contextlib.contextmanager
+def without_profiler_lines() -> Iterator[None]:
+    """Keep torch's profiler lines (:data:`PROFILER_LINE`, written by C++ straight to file
+    descriptor 2) out of the report: stderr goes to a temporary file meanwhile, and every other
+    line written there is passed on afterwards."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            text = caught.read().decode(errors="replace")
+            kept = [line for line in text.splitlines(True) if not PROFILER_LINE.match(line)]
+            sys.stderr.write("".join(kept))
+            sys.stderr.flush()
+
+
 def count_launches(fn, device: str = "cpu") -> int:
     """What bounds a small update from below when its arithmetic is cheap: the calls it makes.
     On a GPU, the device kernels ``fn()`` launches (torch's profiler: events on the CUDA
@@ -165,11 +198,12 @@ def count_launches(fn, device: str = "cpu") -> int:
 
     cuda = torch.device(device).type == "cuda"
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
-    with profile(activities=activities) as prof:
-        fn()
-        if cuda:
-            torch.cuda.synchronize(device)
-    events = prof.events()
+    with without_profiler_lines():
+        with profile(activities=activities) as prof:
+            fn()
+            if cuda:
+                torch.cuda.synchronize(device)
+        events = prof.events()
     if cuda:
         return sum(1 for e in events if e.device_type == DeviceType.CUDA)
 
