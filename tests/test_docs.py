@@ -116,3 +116,29 @@ def test_docs_links_exist() -> None:
     for link in ("docs/experiments.md", "docs/deviations.md", "docs/performance.md"):
         assert f"({link})" in text, link
         assert (ROOT / link).is_file(), link
+
+
+def test_one_place_states_the_expected_quick_start_results() -> None:
+    """docs/performance.md's "Expected quick-start results" is the one place with the quick
+    starts' numbers; the README, the other docs and the quick-start recipes point there."""
+    perf = (ROOT / "docs" / "performance.md").read_text(encoding="utf-8")
+    assert "## Expected quick-start results" in perf
+    section = perf.split("## Expected quick-start results", 1)[1].split("\n## ", 1)[0]
+    assert "gcnt train quickstart" in section and "gcnt train unimal/quickstart" in section
+    pointers = [README, ROOT / "recipes/quickstart.yaml", ROOT / "recipes/unimal/quickstart.yaml"]
+    for path in pointers:
+        assert "expected-quick-start-results" in path.read_text().lower().replace(" ", "-"), path
+    number = r"-?−?\d+(\.\d+)?"
+    result = re.compile(  # a return or an evaluation next to a seed and a number
+        rf"(evaluation|return)[^.\n]*{number}[^.\n]*seeds? [01]\b"
+        rf"|seeds? [01]\b[^.\n]*(evaluation|return)[^.\n]*{number}"
+        rf"|{number} \(seed [01]\)"
+    )
+    others = [*DOCS, *sorted((ROOT / "recipes").rglob("quickstart.yaml"))]
+    stated = [
+        f"{p.name}: {m.group(0)}"
+        for p in others
+        if p.name != "performance.md"
+        for m in result.finditer(p.read_text(encoding="utf-8"))
+    ]
+    assert not stated, stated
