@@ -11,7 +11,9 @@ from cli_helpers import tiny_td3_recipe
 
 import gcnt  # noqa: F401
 from gcnt.cli import main as gcnt_cli
-from gcnt.data_folders import MORPHOLOGIES_ENV
+
+#: the variable naming the user's robot-set folder (gcnt.data_folders)
+MORPHOLOGIES_ENV = "GCNT_MORPHOLOGIES"
 
 
 @pytest.fixture(scope="session", autouse=True)

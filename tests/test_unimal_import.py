@@ -15,7 +15,6 @@ from cli_helpers import ROOT, error_line
 from tensordict import TensorDict
 
 from gcnt.cli import main as gcnt
-from gcnt.data_folders import MORPHOLOGIES_ENV
 from gcnt.morphology.catalogues import (
     load_benchmarks,
     morphologies_dir,
@@ -38,6 +37,8 @@ MADE_AS = {
     "kinematics": {"floor-1409-0-3-01-15-56-55_limb_params_1": "unimal_0900-length1"},
 }
 FAKE = {folder: list(robots) for folder, robots in MADE_AS.items()}
+#: the variable naming the user's robot-set folder (gcnt.data_folders)
+MORPHOLOGIES_ENV = "GCNT_MORPHOLOGIES"
 SPLITS = {
     "train": FAKE["train"],
     "test": FAKE["test"],
@@ -150,7 +151,7 @@ def test_another_name_and_out_folder(unimals, morph, tmp_path, capsys, monkeypat
 
 def test_the_user_folder_is_the_default_and_may_be_relative(unimals, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.delenv(MORPHOLOGIES_ENV)
+    monkeypatch.delenv(MORPHOLOGIES_ENV, raising=False)
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
     imported = import_unimals(unimals)
     assert imported.folder == tmp_path / "xdg" / "gcnt" / "morphologies" / "Unimal100"
