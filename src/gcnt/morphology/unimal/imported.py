@@ -37,7 +37,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-from gcnt.data_folders import user_morphologies
+from gcnt.data_folders import packaged_morphologies, user_morphologies
 from gcnt.files import read_regular
 from gcnt.morphology.catalogues import (
     IMPORTED_INDEX,
@@ -259,12 +259,14 @@ class Defined:
 
 
 def defined_in(out: Path) -> Defined:
-    """The catalogue, benchmark and robot names defined for gcnt reading the folder ``out``."""
+    """The catalogue, benchmark and robot names defined for gcnt reading the robot-set folder
+    ``out`` (beside its own robots and the sets imported among them)."""
     from gcnt.morphology.catalogues import split_keys
 
     imported = imported_catalogues()
     cats = [get_catalogue(n) for n in catalogue_names() if n not in imported]
-    cats += [imported_catalogue(f) for f in imported_catalogues(Path(out)).values()]
+    for root in dict.fromkeys([packaged_morphologies(), Path(os.path.abspath(out))]):
+        cats += [imported_catalogue(f) for f in imported_catalogues(root).values()]
     names: list[str] = []
     robots: dict[str, str] = {}
     for cat in cats:
