@@ -85,6 +85,7 @@ def test_a_wheel_runs_robots_train_and_eval_outside_the_checkout(tmp_path):
     assert gcnt_("--version").strip() == f"gcnt {gcnt.__version__}"
     listing = gcnt_("robots")
     assert "Walker++:train" in listing and "Unimal:test" in listing
+    assert f"your robot sets (GCNT_MORPHOLOGIES, added to gcnt's): {tmp_path}/xdg/gcnt/" in listing
     tiny = [*TINY_SWEEP_OVERRIDES, "collector.total_frames=220", "logger.backend=none"]
     gcnt_("train", "quickstart", *tiny, "run_dir=by-name")
     # a recipe file of the user's, starting from a packaged one by its path

@@ -18,6 +18,7 @@ import logging
 import sys
 from pathlib import Path
 
+from gcnt.data_folders import MORPHOLOGIES_ENV, user_morphologies
 from gcnt.morphology.catalogues import (
     catalogue_names,
     get_catalogue,
@@ -196,6 +197,9 @@ def _list(specs: list[str]) -> int:
         for bench in load_benchmarks(catalogue=name):
             sets |= {f"{bench}:{s}": resolve_robots([f"{bench}:{s}"]) for s in ("train", "test")}
     print(_stats_block(sets))
+    print()
+    print(f"gcnt's robot files: {morphologies_dir()}")
+    print(f"your robot sets ({MORPHOLOGIES_ENV}, added to gcnt's): {user_morphologies()}")
     return 0
 
 
