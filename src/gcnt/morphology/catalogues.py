@@ -458,11 +458,11 @@ GENERIC_FOLDERS = frozenset(
 )  # fmt: skip
 
 
-def _folders(path: Path) -> list[str]:
+def _folders(path: Path, generic: bool = False) -> list[str]:
     """The folders of ``path`` (absolute, as given: a link keeps the folder it is listed in),
-    nearest first, the generic ones (:data:`GENERIC_FOLDERS`) left out."""
+    nearest first; the generic ones (:data:`GENERIC_FOLDERS`) left out unless ``generic``."""
     parts = Path(os.path.abspath(path)).parent.parts[1:]
-    return [p for p in reversed(parts) if p.lower() not in GENERIC_FOLDERS]
+    return [p for p in reversed(parts) if generic or p.lower() not in GENERIC_FOLDERS]
 
 
 def _names_by_folder(paths: Sequence[Path], taken: set[str]) -> list[str]:
@@ -470,23 +470,25 @@ def _names_by_folder(paths: Sequence[Path], taken: set[str]) -> list[str]:
     stem after its folder at the nearest depth where the files' folders all differ
     (``suite.hopper``, ``mujoco.hopper``; generic folder names such as ``xml`` or ``assets``
     skipped: they tell nothing apart), else after several of its nearest folders, joined by
-    dots."""
-    folders = [_folders(p) for p in paths]
+    dots; generic folders count only where nothing else tells the files apart."""
     stems = [Path(os.path.abspath(p)).stem for p in paths]
-    depth = max(map(len, folders), default=0)
 
     def apart(names: list[str]) -> bool:
         return len(set(names)) == len(names) and not taken.intersection(names)
 
     names = stems
-    for d in range(depth):
-        names = [f"{f[d]}.{s}" if d < len(f) else s for f, s in zip(folders, stems, strict=True)]
-        if apart(names):
-            return names
-    for k in range(2, depth + 1):
-        names = [".".join((*reversed(f[:k]), s)) for f, s in zip(folders, stems, strict=True)]
-        if apart(names):
-            return names
+    for generic in (False, True):
+        folders = [_folders(p, generic) for p in paths]
+        depth = max(map(len, folders), default=0)
+        pairs = list(zip(folders, stems, strict=True))
+        for d in range(depth):
+            names = [f"{f[d]}.{s}" if d < len(f) else s for f, s in pairs]
+            if apart(names):
+                return names
+        for k in range(2, depth + 1):
+            names = [".".join((*reversed(f[:k]), s)) for f, s in pairs]
+            if apart(names):
+                return names
     return names
 
 
