@@ -46,6 +46,9 @@ def emulate() -> Iterator[None]:
     if _active[0]:
         yield
         return
+    # imported as on a CPU build (it asks whether torch was built with CUDA, and torch says no)
+    import torch._inductor.cudagraph_trees  # noqa: F401
+
     saved = []
     for owner, name, repl in patches.entry_points():
         saved.append((owner, name, owner.__dict__.get(name, _MISSING)))

@@ -11,6 +11,9 @@ import torch
 from . import rules, state
 from .state import CUDA, EmulationError
 
+#: captures ended and replays run, over the process (tests check that a graphed path replays)
+counts = {"captures": 0, "replays": 0}
+
 
 class CUDAGraph:
     def __init__(self, keep_graph: bool = False) -> None:
@@ -28,6 +31,7 @@ class CUDAGraph:
         cap.roll_back()
         self._ops = cap.ops
         self._capture = None
+        counts["captures"] += 1
 
     def replay(self) -> None:
         if self._ops is None:
@@ -35,6 +39,7 @@ class CUDAGraph:
         if state.capture[0] is not None:
             raise EmulationError("CUDAGraph.replay() inside a capture")
         rules.replay(self._ops)
+        counts["replays"] += 1
 
     def reset(self) -> None:
         self._ops = None

@@ -172,7 +172,6 @@ def entry_points() -> list[tuple[object, str, object]]:
         (c, "mem_get_info", lambda device=None: (_PROPS.total_memory, _PROPS.total_memory)),
         (c, "set_sync_debug_mode", lambda mode: None),
         (c, "get_sync_debug_mode", lambda: 0),
-        (torch.backends.cuda, "is_built", lambda: True),
         (torch.accelerator, "is_available", lambda: True),
         (torch.accelerator, "current_accelerator", _Accelerator.current_accelerator),
         (torch.accelerator, "device_count", lambda: 1),

@@ -1,0 +1,120 @@
+"""A TD3 step captured in a CUDA graph makes the eager step's updates: the same batches give the
+same losses and weights to float32 rounding, for one seed (both schedules' batch layouts) and for
+stacked seeds. A captured step replays its kernels only, so Python state read inside it (a
+counter, a float, a branch) would be frozen at capture and part ways here. Runs on a GPU, or on
+the emulated one (tests/cuda_emulation), whose replay re-executes exactly the captured ops."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from gcnt.keys import ACTION
+from gcnt.recipes import load_recipe
+from gcnt.rl.factories import make_env, train_robots
+from gcnt.rl.td3 import replay as rb
+from gcnt.rl.td3.learner import TD3Learner
+from gcnt.rl.td3.loss import target_noise
+from gcnt.rl.td3.stacked import StackedTD3Learner
+
+pytestmark = [pytest.mark.gpu]
+
+QUICK = Path(__file__).parents[1] / "recipes/quickstart.yaml"
+SIZES = {
+    "gcnt": "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}",
+    "smp": "network.kwargs={msg_dim: 8, hidden: 12, head_hidden: [16]}",
+}
+GRAPHED = ["compile.cudagraphs=true", "compile.replay_on_device=true"]
+#: updates per comparison: with compile.warmup=2 and td3.policy_delay=2, each step is called
+#: eagerly, then captured, then replayed (the critic step 4 times, the actor step once)
+UPDATES = 6
+#: two robots of other sizes (the paper schedule alternates them)
+ROBOTS = "env.robots=[hopper_3, hopper_5]"
+
+
+def _recipe(method: str, *extra: str):
+    # no target noise inside the single-seed step: the eager and graphed runs draw it from the
+    # same generator in other orders (the stacked step takes its noise as an input instead)
+    over = [f"network.name={method}", SIZES[method], ROBOTS, "device=cuda", "td3.policy_noise=0"]
+    return load_recipe(QUICK, [*over, *extra])
+
+
+def _replay(recipe, env) -> rb.RobotReplay:
+    data = env.rollout(12, break_when_any_done=False)
+    replay = rb.RobotReplay(env.batch_size[0], capacity=40, batch_size=6)
+    replay.extend(data)
+    return replay
+
+
+def _close(a: torch.Tensor, b: torch.Tensor, atol: float = 1e-7) -> bool:
+    """Equal to float32 rounding. The networks run in float64, so that Adam cannot turn the
+    rounding noise of a near-zero gradient (attention's key bias has none) into a step of its
+    learning rate; what remains is the graphed step's capturable Adam, whose step count and bias
+    corrections are float32 (1 - 0.999 in float32: 1.3e-5 off), about 2e-9 per update here."""
+    return torch.allclose(a.detach().cpu(), b.detach().cpu(), rtol=1e-5, atol=atol)
+
+
+def _double(batch):
+    return batch.apply(lambda t: t.double() if t.is_floating_point() else t)
+
+
+def _learners(method: str, env, n: int = 1, graphed: bool = False):
+    recipe = _recipe(method, *(GRAPHED if graphed else []))
+    out = []
+    for seed in range(n):
+        torch.manual_seed(seed)
+        learner = TD3Learner(recipe, env)
+        for m in (learner.actor, learner.critics, learner.target_actor, learner.target_critics):
+            m.double()
+        out.append(learner)
+    return out
+
+
+@pytest.mark.parametrize("schedule", ["paper", "mixed"])
+@pytest.mark.parametrize("method", ["gcnt", "smp"])
+def test_graphed_td3_steps_make_the_eager_updates(method, schedule):
+    env = make_env(_recipe(method), train_robots(_recipe(method)))
+    replay = _replay(_recipe(method), env)
+    torch.manual_seed(3)
+    n = replay.num_robots
+    batches = [
+        _double(replay.sample_robot(i % n) if schedule == "paper" else replay.sample_mixed())
+        for i in range(UPDATES)
+    ]
+    (eager,) = _learners(method, env)
+    (graphed,) = _learners(method, env, graphed=True)
+    env.close()
+    for i, batch in enumerate(batches):
+        a, b = eager.step(batch), graphed.step(batch)
+        assert a.keys() == b.keys()
+        for k in a:
+            assert _close(a[k], b[k], atol=1e-5), (i, k, a[k], b[k])
+    for name in ("actor", "critics", "target_actor", "target_critics"):
+        ours, theirs = getattr(eager, name), getattr(graphed, name)
+        for (key, p), q in zip(ours.named_parameters(), theirs.parameters(), strict=True):
+            assert _close(p, q), (name, key, (p - q).abs().max())
+    assert eager.updates == graphed.updates == UPDATES
+
+
+@pytest.mark.parametrize("method", ["gcnt", "smp"])
+def test_graphed_stacked_td3_steps_make_the_eager_updates(method):
+    recipe = _recipe(method)
+    env = make_env(recipe, train_robots(recipe))
+    replay = _replay(recipe, env)
+    runs = {g: StackedTD3Learner(_learners(method, env, 2, g)) for g in (False, True)}
+    env.close()
+    o = runs[False].config
+    torch.manual_seed(4)
+    for i in range(UPDATES):
+        batches = [_double(replay.sample_mixed()) for _ in range(2)]
+        noises = [target_noise(b.get(ACTION), 0.2, o.noise_clip) for b in batches]
+        out = {g: run.step(run.stack_batches(batches, noises)) for g, run in runs.items()}
+        for k in out[False]:
+            assert _close(out[False][k], out[True][k], atol=1e-5), (i, k, out[False][k], out[True][k])
+    for g in runs.values():
+        g.push()
+    for a, b in zip(runs[False].learners, runs[True].learners, strict=True):
+        for p, q in zip(a._online + a._target, b._online + b._target, strict=True):
+            assert _close(p, q), (p - q).abs().max()
