@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.gcnt-installed
 
-.PHONY: train test test-slurm lint install clean-venv
+.PHONY: train test test-gpu-emulated test-slurm lint install clean-venv
 
 install: $(STAMP)
 
@@ -28,6 +28,13 @@ train: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -m "not slurm"
 	$(BIN)/python -m pytest -m slurm tests/test_slurm.py
+
+# The whole GPU matrix (tests/test_gpu.py, every method and switch, and the graphed-step parity):
+# on the GPU where there is one, else on the emulated GPU of tests/cuda_emulation, whose rules are
+# checked first. `make test` runs a subset of it.
+test-gpu-emulated: $(STAMP)
+	$(BIN)/python -m pytest --gpu-matrix tests/test_cuda_emulation.py tests/test_gpu.py \
+		tests/test_gpu_parity.py tests/test_compile_capture.py
 
 # Only the Slurm checks.
 test-slurm: $(STAMP)

@@ -8,10 +8,9 @@ import contextlib
 
 import torch
 from torch.overrides import TorchFunctionMode
-from torch.utils._pytree import tree_flatten
 
 from . import state
-from .rules import _new_outputs
+from .rules import _new_outputs, _tensors
 from .state import CPU, CUDA, EmulationError, is_cuda_device, local, on_gpu
 
 T = torch.Tensor
@@ -155,7 +154,7 @@ class PythonSide(TorchFunctionMode):
             with moving(CUDA if gpu else CPU):
                 out = func(*args, **{**kwargs, "device": "cpu"})
             # some factories (torch.tensor) build their tensor below the dispatch modes
-            inputs = [a for a in tree_flatten(args)[0] if isinstance(a, torch.Tensor)]
+            inputs = [state.plain(a) for a in _tensors(args)]
             for t in _new_outputs(out, inputs):
                 state.tag(t, gpu)
             return out

@@ -8,7 +8,6 @@ import warnings
 
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
-from torch.utils._pytree import tree_flatten
 
 from . import state
 from .state import CUDA, EmulationError, local, on_gpu, storage_of
@@ -69,8 +68,7 @@ class DeviceRules(TorchDispatchMode):
         packet = func.overloadpacket
         if packet in METADATA:
             return func(*args, **kwargs)
-        flat, _ = tree_flatten((args, kwargs))
-        inputs = [t for t in flat if isinstance(t, torch.Tensor)]
+        inputs = _tensors(args, kwargs.values())
         moving = local.moving
         if moving is not None:  # an explicit move or a factory with a device
             gpu = moving.type == "cuda"
@@ -176,6 +174,25 @@ class DeviceRules(TorchDispatchMode):
         return out
 
 
+def _tensors(*groups) -> list[torch.Tensor]:
+    """The tensors of aten arguments (tensors, or lists of them)."""
+    out = []
+    for group in groups:
+        for a in group:
+            if isinstance(a, torch.Tensor):
+                out.append(a)
+            elif isinstance(a, (list, tuple)):
+                out.extend(t for t in a if isinstance(t, torch.Tensor))
+    return out
+
+
+def _storage_id(t: torch.Tensor) -> int | None:
+    try:
+        return t.untyped_storage()._cdata
+    except (RuntimeError, NotImplementedError, TypeError):
+        return None
+
+
 def _freeze(tree):
     if isinstance(tree, torch.Tensor):
         return tree.clone() if not on_gpu(tree) and tree.dim() == 0 else tree
@@ -187,15 +204,12 @@ def _freeze(tree):
 
 
 def _new_outputs(out, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
-    flat, _ = tree_flatten(out)
-    old = {id(s) for s in (storage_of(t) for t in inputs) if s is not None}
-    res = []
-    for t in flat:
-        if isinstance(t, torch.Tensor):
-            s = storage_of(t)
-            if s is not None and id(s) not in old:
-                res.append(t)
-    return res
+    """The tensors of ``out`` whose storage is none of ``inputs``' (aten level: no wrappers)."""
+    flat = _tensors((out,))
+    if not flat:
+        return []
+    old = {_storage_id(t) for t in inputs}
+    return [t for t in flat if _storage_id(t) not in old]
 
 
 def _tag_new(out, inputs) -> list[torch.Tensor]:
@@ -220,8 +234,7 @@ def replay(ops) -> None:
             if func.is_view:
                 continue  # the recorded view aliases its base already
             res = func(*args, **kwargs)
-            recorded, _ = tree_flatten(out)
-            new, _ = tree_flatten(res)
+            recorded, new = _tensors((out,)), _tensors((res,))
             for o, r in zip(recorded, new, strict=False):
                 if isinstance(o, torch.Tensor) and id(o) in fresh and r is not o:
                     o.copy_(r)

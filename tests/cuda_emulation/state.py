@@ -66,6 +66,10 @@ def plain(t: torch.Tensor) -> torch.Tensor:
 
 def storage_of(t: torch.Tensor) -> torch.UntypedStorage | None:
     try:
+        return t.untyped_storage()
+    except (RuntimeError, NotImplementedError, TypeError):
+        pass
+    try:  # a functorch wrapper
         return plain(t).untyped_storage()
     except (RuntimeError, NotImplementedError, TypeError):
         return None
