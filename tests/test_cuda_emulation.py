@@ -262,3 +262,16 @@ def test_emulation_leaves_torch_as_it_found_it():
         x = gpu(2)
     assert torch.cuda.is_available() == before and not on_gpu(torch.ones(1))
     assert x.device.type == "cpu"  # outside the emulation a tensor is what it really is
+
+
+def test_emulation_gives_back_what_cudagraphmodule_takes_from_the_pytree():
+    from tensordict import TensorDict
+    from tensordict.nn import CudaGraphModule
+    from torch.utils._pytree import SUPPORTED_NODES
+
+    registered = TensorDict in SUPPORTED_NODES
+    assert registered  # tensordict registers its classes in torch's pytree
+    with emulate(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        CudaGraphModule(lambda td: td, in_keys=[], out_keys=[])
+    assert (TensorDict in SUPPORTED_NODES) == registered

@@ -49,6 +49,11 @@ def emulate() -> Iterator[None]:
     # imported as on a CPU build (it asks whether torch was built with CUDA, and torch says no)
     import torch._inductor.cudagraph_trees  # noqa: F401
 
+    # tensordict's CudaGraphModule takes TensorDicts out of torch's pytree for the process; they
+    # go back on exit, so that later tests see the process as they would without a GPU
+    from torch.utils._pytree import SUPPORTED_NODES
+
+    nodes = dict(SUPPORTED_NODES)
     saved = []
     for owner, name, repl in patches.entry_points():
         saved.append((owner, name, owner.__dict__.get(name, _MISSING)))
@@ -60,6 +65,8 @@ def emulate() -> Iterator[None]:
     finally:
         _active[0] = False
         state.capture[0] = None
+        for kind, node in nodes.items():
+            SUPPORTED_NODES.setdefault(kind, node)
         for owner, name, old in reversed(saved):
             if old is _MISSING:
                 delattr(owner, name)
