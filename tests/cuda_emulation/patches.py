@@ -9,7 +9,6 @@ import types
 import torch
 
 from . import graphs, state
-from .frontend import moving
 from .state import CPU, CUDA, is_cuda_device, on_gpu
 
 _PROPS = types.SimpleNamespace(
@@ -46,8 +45,6 @@ def cuda_get_rng_state(device="cuda"):
 
 
 def cuda_set_rng_state(new_state, device="cuda") -> None:
-    with torch._C.DisableTorchFunction():
-        pass
     _check_rng_state(new_state)
     _cuda_rng["state"] = new_state.clone()
 
@@ -125,10 +122,8 @@ def _group(original):
     return group
 
 
-class _Accelerator:
-    @staticmethod
-    def current_accelerator(check_available: bool = False):
-        return CUDA
+def current_accelerator(check_available: bool = False) -> torch.device:
+    return CUDA
 
 
 def entry_points() -> list[tuple[object, str, object]]:
@@ -173,7 +168,7 @@ def entry_points() -> list[tuple[object, str, object]]:
         (c, "set_sync_debug_mode", lambda mode: None),
         (c, "get_sync_debug_mode", lambda: 0),
         (torch.accelerator, "is_available", lambda: True),
-        (torch.accelerator, "current_accelerator", _Accelerator.current_accelerator),
+        (torch.accelerator, "current_accelerator", current_accelerator),
         (torch.accelerator, "device_count", lambda: 1),
         (torch.accelerator, "current_device_index", lambda: 0),
         (torch.accelerator, "current_device_idx", lambda: 0),
@@ -193,5 +188,3 @@ def entry_points() -> list[tuple[object, str, object]]:
     # fmt: on
     return repl
 
-
-__all__ = ["entry_points", "moving"]
