@@ -89,6 +89,10 @@ class DeviceRules(TorchDispatchMode):
             _tag_new(out, inputs)
         elif moving is not None or packet in CROSSING:
             _untag_new(out, inputs)
+        if cap is not None:  # a host tensor made while capturing (a constant of the step)
+            for t in _new_outputs(out, inputs):
+                if (s := storage_of(t)) is not None:
+                    cap.allocated[s] = True
         return out
 
     # ------------------------------------------------------------------ op families
@@ -146,7 +150,13 @@ class DeviceRules(TorchDispatchMode):
                 raise _capture_error(f"a copy between the host and the device ({func})")
         if kwargs.get("generator") is not None:
             raise _capture_error(f"{func} draws from a generator other than the default CUDA one")
-        scalars = [t for t in inputs if not on_gpu(t) and t.dim() == 0]
+        # a host scalar made before the capture may change after it; the graph keeps its value
+        cap = state.capture[0]
+        scalars = [
+            t
+            for t in inputs
+            if not on_gpu(t) and t.dim() == 0 and _made_before(t, cap)
+        ]
         if scalars and packet not in CROSSING:
             warnings.warn(
                 f"a captured kernel ({func}) reads a CPU scalar: its value at capture is frozen "
@@ -172,6 +182,11 @@ class DeviceRules(TorchDispatchMode):
         frozen_args, frozen_kwargs = _freeze((args, kwargs))
         cap.ops.append((func, frozen_args, frozen_kwargs, out, {id(t) for t in fresh}))
         return out
+
+
+def _made_before(t: torch.Tensor, cap: state.Capture) -> bool:
+    s = storage_of(t)
+    return s is not None and s not in cap.allocated
 
 
 def _tensors(*groups) -> list[torch.Tensor]:
