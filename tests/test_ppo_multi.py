@@ -49,3 +49,77 @@ def test_sigterm_stops_a_multi_process_collector_cleanly_and_the_run_resumes(tmp
     more = steps + d["ppo"]["num_envs"] * d["ppo"]["steps_per_env"]
     assert gcnt(["train", "--resume", str(run), f"collector.total_frames={more}"]) == 0
     assert RunDir(run).load_checkpoint()["env_steps"] >= more
+
+
+def _first_rows(tmp_path: Path, name: str, **ppo) -> list[dict]:
+    from gcnt.rl.loop import train
+
+    recipe = tiny_recipe(tmp_path / name, collector="multi", workers=2, **ppo)
+    recipe.collector.total_frames = 80  # one iteration
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    return [
+        {k: v for k, v in r.items() if "loss" in k or "return" in k} for r in run.read_metrics()
+    ]
+
+
+@pytest.mark.slow
+def test_the_multi_process_collector_repeats_a_run_for_its_seed(tmp_path: Path):
+    """Two runs of one recipe and seed on two worker processes log the same first row: each
+    worker's resets, robot draws and action noise come from the seed."""
+    first = _first_rows(tmp_path, "a")
+    assert first and "train_return/mean" in first[0]
+    assert _first_rows(tmp_path, "b") == first
+
+
+def test_a_killed_runs_probabilities_file_is_removed_by_the_next(tmp_path: Path):
+    import os
+
+    from gcnt.rl.ppo.robot_sampler import PROBS_PREFIX, shared_probs
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    folder = "/dev/shm" if os.path.isdir("/dev/shm") else None
+    import tempfile
+
+    stale = Path(folder or tempfile.gettempdir()) / f"{PROBS_PREFIX}{gone.stdout.strip()}-x.f64"
+    stale.write_bytes(b"\0" * 16)  # what a run killed with SIGKILL leaves
+    try:
+        probs = shared_probs(2)
+        assert not stale.exists()
+        assert Path(probs.filename).name.startswith(f"{PROBS_PREFIX}{os.getpid()}-")
+    finally:
+        stale.unlink(missing_ok=True)
+
+
+@pytest.mark.slow
+def test_a_killed_worker_ends_the_run_in_one_line(tmp_path: Path):
+    import os
+
+    d = tiny_recipe(tmp_path / "unused", collector="multi", workers=2).to_dict()
+    d.pop("run_dir", None)
+    d["collector"]["total_frames"] = 10_000_000  # runs until a worker dies
+    recipe = tmp_path / "multi.yaml"
+    recipe.write_text(yaml.safe_dump(d))
+    run = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcnt.cli", "train", str(recipe), f"run_dir={run}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_for_metrics([run / "metrics.jsonl"], proc)
+        children = subprocess.run(
+            ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
+        ).stdout.split()
+        workers = [c for c in children if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
+        os.kill(int(workers[0]), signal.SIGKILL)  # as the OOM killer does
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    lines = [x for x in stderr.splitlines() if x.startswith("gcnt train: error:")]
+    assert proc.returncode == 2 and "Traceback" not in stderr, stderr[-3000:]
+    assert len(lines) == 1 and "killed by SIGKILL" in lines[0], stderr[-3000:]
+    assert f"gcnt train --resume {run}" in lines[0]

@@ -344,8 +344,32 @@ def test_check_memory_compares_with_the_machine():
     have = memory_bytes("cpu")
     assert have is not None and have > 0
     check_memory(have // 2, "cpu", "x", "fix")
-    with pytest.raises(RecipeError, match="more than the .* of memory on this machine; fix"):
+    with pytest.raises(
+        RecipeError, match="more than .*: (the memory of this machine|this job's memory limit)"
+    ):
         check_memory(have + 1, "cpu", "x", "fix")
+
+
+def test_the_memory_check_names_the_address_space_limit_when_that_is_the_limit():
+    import resource
+    import subprocess
+    import sys
+
+    limit = 6 << 30
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    code = (
+        "from gcnt.rl.config_check import check_memory\n"
+        "try:\n    check_memory(8 << 30, 'cpu', 'the replay', 'lower it')\n"
+        "except ValueError as e:\n    print(e)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], preexec_fn=cap, capture_output=True, text=True, check=True
+    ).stdout
+    assert "address-space limit (ulimit -v, 6.4 GB)" in out and "this machine" not in out, out
+    assert out.strip().endswith("; lower it")
 
 
 def test_a_robot_too_large_for_the_mujoco_arena_is_one_line(trained, tmp_path, capsys):

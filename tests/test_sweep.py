@@ -293,3 +293,87 @@ def test_every_value_of_the_grid_is_checked_when_the_sweep_is_set_up(tmp_path, c
     assert "--eval test: the recipe has no test robots" in line
     assert not sw.exists()
     assert main([*argv, "--methods", "gcnt,swat", "--eval", "test"]) == 0
+
+
+_STAND_IN = """
+import os, signal, sys, time
+from pathlib import Path
+here = Path(sys.argv[1])
+def stop(*_):
+    time.sleep(1)  # a checkpoint being written
+    (here / "stopped").write_text("x")
+    sys.exit(75)
+signal.signal(signal.SIGTERM, stop)
+(here / "started").write_text(str(os.getpid()))
+time.sleep(300)
+"""
+
+_DRIVER = """
+import sys
+from pathlib import Path
+import gcnt.sweep.local as L
+from gcnt.sweep.manifest import Manifest
+from gcnt.sweep.spec import RunSpec
+here = Path(sys.argv[1])
+L.commands = lambda spec: [("train", [sys.executable, "-c", sys.argv[2], str(here)])]
+spec = RunSpec(id="t/m/seed0", run_dir=str(here / "run"), recipe="r.yaml", task="t", algo="ppo",
+               method="m", seed=0, overrides=[])
+try:
+    L.run_local(Manifest(here, [spec], {}), jobs=1, poll=0.1)
+except KeyboardInterrupt as e:
+    print(e, flush=True)
+    sys.exit(143)
+"""
+
+
+def test_sigterm_to_a_local_sweep_stops_its_children_first(tmp_path: Path) -> None:
+    import os
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _DRIVER, str(tmp_path), _STAND_IN],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    started = tmp_path / "started"
+    try:
+        t0 = time.monotonic()
+        while not started.exists() and proc.poll() is None and time.monotonic() - t0 < 120:
+            time.sleep(0.1)
+        child = int(started.read_text())
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 143, err
+        assert out.strip() == "stopped by SIGTERM"
+        assert (tmp_path / "stopped").exists()  # the child stopped (and checkpointed) first
+        with pytest.raises(ProcessLookupError):
+            os.kill(child, 0)
+        (spec,) = S.Manifest.load(tmp_path).runs
+        assert spec.state == "pending"  # not "running": the next sweep starts it again
+    finally:
+        proc.kill()
+        if started.exists():
+            try:
+                os.kill(int(started.read_text()), signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def test_status_of_a_driven_pool_sweep_is_the_manifest_own(tmp_path: Path, capsys) -> None:
+    """While its driver lives, a pool sweep's run is ``running`` from its start (its process
+    holds no run lock yet while it builds) and ``done`` only when the driver says so."""
+    import os
+
+    running = _spec(tmp_path, state="running")
+    manifest = S.Manifest(tmp_path / "sw", [running], {"cluster": {"executor": "pool"}})
+    manifest.save()
+    (tmp_path / "sw" / ".sweep.lock").write_text(str(os.getpid()))
+    capsys.readouterr()
+    assert main(["sweep", str(tmp_path / "sw"), "--status"]) == 0
+    assert " running" in capsys.readouterr().out
+    (tmp_path / "sw" / ".sweep.lock").unlink()  # no driver: worked out from the files
+    assert main(["sweep", str(tmp_path / "sw"), "--status"]) == 0
+    assert " pending" in capsys.readouterr().out

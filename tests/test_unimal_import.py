@@ -168,6 +168,91 @@ def test_the_user_folder_is_the_default_and_may_be_relative(unimals, tmp_path, m
     ]
 
 
+def test_out_onto_a_file_is_one_line(unimals, morph, tmp_path, capsys):
+    target = tmp_path / "a-file"
+    target.write_text("mine\n")
+    line = error_line(capsys, ["import-unimal", str(unimals), "--out", str(target)])
+    assert line == f"gcnt import-unimal: error: --out {target}: not a folder; give the " + (
+        "robot-set folder to import into"
+    )
+    assert target.read_text() == "mine\n"
+
+
+def test_a_damaged_imported_set_is_left_out_with_one_warning(unimals, morph, caplog, capsys):
+    import_unimals(unimals)
+    (morph / "Unimal100" / "test" / "xml" / f"{FAKE['test'][0]}.xml").unlink()
+    refresh_catalogues()
+    with caplog.at_level("WARNING"):
+        assert [r.name for r in resolve_robots(["hopper_3", "CWHH++:test"])][0] == "hopper_3"
+        assert gcnt(["robots", "walker_3_main"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
+    assert len(warned) == 1, warned
+    assert str(morph / "Unimal100") in warned[0] and FAKE["test"][0] in warned[0], warned[0]
+
+
+def test_a_second_import_into_one_folder_waits_its_turn(unimals, morph, tmp_path, capsys):
+    """While one import holds the folder, a second is one line; a temporary folder left by a
+    killed import is removed by the next one; SIGTERM removes the import's own."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    stale = morph / ".Old.importing-999999999"  # no such process
+    (stale / "train").mkdir(parents=True)
+    hold = (
+        "import sys, time; from pathlib import Path\n"
+        "from gcnt.morphology.unimal.imported import _import_lock\n"
+        "with _import_lock(Path(sys.argv[1])):\n"
+        "    print('held', flush=True); sys.stdin.read()\n"
+    )
+    holder = subprocess.Popen(
+        [sys.executable, "-c", hold, str(morph)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert holder.stdout.readline() == "held\n"
+        line = error_line(capsys, ["import-unimal", str(unimals)])
+        assert f"{morph}: another gcnt import-unimal (process {holder.pid})" in line, line
+    finally:
+        holder.communicate("", timeout=60)
+    assert stale.exists() and not (morph / "Unimal100").exists()
+    assert gcnt(["import-unimal", str(unimals)]) == 0
+    assert not stale.exists()
+
+    # SIGTERM while the files are checked: a one-line end, nothing left behind
+    code = (
+        "import sys, time\n"
+        "import gcnt.morphology.unimal.imported as m\n"
+        "check = m.check_member\n"
+        "def slow(member):\n"
+        "    print('checking', flush=True); time.sleep(30)\n"
+        "m.check_member = slow\n"
+        "from gcnt.cli import main\n"
+        "sys.exit(main(['import-unimal', sys.argv[1], '--name', 'Other', '--out', sys.argv[2]]))\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(unimals), str(tmp_path / "out")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert proc.stdout.readline() == f"checking every robot file of {unimals} ...\n"
+    assert proc.stdout.readline() == "checking\n"
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.strip() == "gcnt import-unimal: stopped by SIGTERM; nothing was imported", err
+    assert list((tmp_path / "out").iterdir()) == []
+
+
 def _set_without(unimals: Path, tmp_path: Path, folder: str) -> Path:
     import shutil
 

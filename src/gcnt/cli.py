@@ -75,7 +75,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ),
         ("gcnt.envs.robot_table", ("RobotTooLargeError",)),
         ("gcnt.rl.run_dir", ("CheckpointError", "RunDirError")),
-        ("gcnt.rl.loop", ("TrainingDivergedError",)),
+        ("gcnt.rl.loop", ("TrainingDivergedError", "WorkerDiedError")),
         ("gcnt.rl.evaluate", ("PolicyMismatchError",)),
         ("gcnt.analysis.runs", ("AnalysisError",)),
         ("gcnt.plugins", ("PluginError",)),
@@ -223,11 +223,15 @@ def _run(argv: list[str], given: list[str], command: str | None) -> int:
             raise
         if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS:
             # a folder it cannot write (read-only, someone else's) or a full disk: one line
-            hint = (
-                "; --out DIR writes elsewhere"
-                if hasattr(args, "out")
-                else "; free space, or work on a copy in a folder you can write"
-            )
+            full = e.errno in (errno.ENOSPC, errno.EDQUOT)  # else: read-only, not permitted
+            if hasattr(args, "out"):
+                hint = (
+                    "; free space, or give --out DIR elsewhere"
+                    if full
+                    else ("; --out DIR writes elsewhere")
+                )
+            else:
+                hint = "; free space" if full else "; work on a copy in a folder you can write"
             print(
                 f"gcnt {args.command}: error: {e.filename or 'writing'}: cannot write "
                 f"({e.strerror or e}){hint}",

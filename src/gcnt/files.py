@@ -7,12 +7,19 @@ the file and never quoting it."""
 
 from __future__ import annotations
 
+import json
 import os
 import stat
+from collections.abc import Iterable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 KiB, MiB, GiB = 1 << 10, 1 << 20, 1 << 30
+#: the most read at once
+_CHUNK = 4 * MiB
+#: how deep lists and mappings of a YAML or JSON file gcnt reads may nest
+MAX_DEPTH = 100
+_TOO_DEEP = object()
 
 
 def open_regular(path: str | Path, max_bytes: int, what: str, error: type[Exception]) -> BinaryIO:
@@ -43,10 +50,108 @@ def read_regular(path: str | Path, max_bytes: int, what: str, error: type[Except
     """The bytes of ``path`` after :func:`open_regular`'s checks (a file that grew past
     ``max_bytes`` while being read is refused too)."""
     with open_regular(path, max_bytes, what, error) as f:
-        data = f.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise error(f"{path}: larger than {_size(max_bytes)}; {what}")
-    return data
+        # what is there, in chunks: a cap of GiBs reserves nothing for a file of a few bytes
+        size = os.fstat(f.fileno()).st_size
+        chunks: list[bytes] = []
+        total = 0
+        while True:
+            chunk = f.read(min(max(size - total, 0) + 1, _CHUNK, max_bytes + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > max_bytes:
+                raise error(f"{path}: larger than {_size(max_bytes)}; {what}")
+    return b"".join(chunks)
+
+
+def read_text(path: str | Path, max_bytes: int, what: str, error: type[Exception]) -> str:
+    """The text of ``path`` (UTF-8) after :func:`read_regular`; bytes that are not UTF-8 are
+    ``error`` too."""
+    try:
+        return read_regular(path, max_bytes, what, error).decode("utf-8")
+    except UnicodeDecodeError:
+        raise error(f"{path}: not UTF-8 text; {what}") from None
+
+
+def too_deep(value: Any, limit: int = MAX_DEPTH) -> bool:
+    """Whether lists and mappings in ``value`` nest deeper than ``limit`` (walked without
+    recursion, so that the check itself cannot overflow the stack)."""
+    stack = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            children: Iterable[Any] = [*item.keys(), *item.values()]
+        elif isinstance(item, (list, tuple)):
+            children = item
+        else:
+            continue
+        if depth > limit:
+            return True
+        stack.extend((c, depth + 1) for c in children)
+    return False
+
+
+def parse_json(text: str | bytes, path: str | Path, what: str, error: type[Exception]) -> Any:
+    """``text`` read as JSON; malformed or nested deeper than :data:`MAX_DEPTH` is ``error``
+    naming ``path``."""
+    try:
+        value = json.loads(text)
+    except RecursionError:
+        value = _TOO_DEEP
+    except (ValueError, UnicodeDecodeError) as e:
+        raise error(f"{path}: not valid JSON ({e}); {what}") from None
+    if value is _TOO_DEEP or too_deep(value):
+        raise error(f"{path}: nested deeper than {MAX_DEPTH} levels; {what}")
+    return value
+
+
+def parse_yaml(
+    text: str | bytes, path: str | Path, what: str, error: type[Exception], loader: Any = None
+) -> Any:
+    """``text`` read as YAML (``loader``, default ``yaml.SafeLoader``); malformed or nested
+    deeper than :data:`MAX_DEPTH` is ``error`` naming ``path``."""
+    import yaml
+
+    try:
+        value = yaml.load(text, Loader=loader or yaml.SafeLoader)
+    except RecursionError:
+        value = _TOO_DEEP
+    except yaml.YAMLError as e:
+        problem = getattr(e, "problem", None) or type(e).__name__
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise error(f"{path}: not valid YAML ({problem}{where}); {what}") from None
+    if value is _TOO_DEEP or too_deep(value):
+        raise error(f"{path}: nested deeper than {MAX_DEPTH} levels; {what}")
+    return value
+
+
+def read_json(path: str | Path, max_bytes: int, what: str, error: type[Exception]) -> Any:
+    """The JSON value of ``path``, read by :func:`read_regular` and :func:`parse_json`."""
+    return parse_json(read_regular(path, max_bytes, what, error), path, what, error)
+
+
+def read_yaml(path: str | Path, max_bytes: int, what: str, error: type[Exception]) -> Any:
+    """The YAML value of ``path`` (safe loader), read by :func:`read_text` and
+    :func:`parse_yaml`."""
+    return parse_yaml(read_text(path, max_bytes, what, error), path, what, error)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """``Path(path).write_text(text)``, whose OSError names ``path`` even when the write
+    itself fails (a full disk fails in ``write``, and such an error names no file)."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_bytes(path: str | Path, data: bytes) -> None:
+    """``Path(path).write_bytes(data)``; an OSError names ``path`` (see :func:`write_text`)."""
+    try:
+        Path(path).write_bytes(data)
+    except OSError as e:
+        if e.filename is None:
+            e.filename = str(path)
+        raise
 
 
 def _size(n: int) -> str:

@@ -31,7 +31,7 @@ from typing import Any
 
 import gcnt
 from gcnt import plugins
-from gcnt.files import MiB, read_regular
+from gcnt.files import MiB, read_json, write_text
 
 log = logging.getLogger(__name__)
 
@@ -175,10 +175,7 @@ def read_sessions(run_dir: str | Path) -> list[dict[str, Any]]:
     if not path.exists():
         return []
     what = "provenance.json is the file gcnt train writes"
-    try:
-        data = json.loads(read_regular(path, MAX_BYTES, what, ProvenanceError))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ProvenanceError(f"{path}: not JSON ({e})") from None
+    data = read_json(path, MAX_BYTES, what, ProvenanceError)
     sessions = data.get("sessions") if isinstance(data, dict) else None
     if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
         raise ProvenanceError(f"{path}: no list of sessions; {what}")
@@ -199,7 +196,7 @@ def add_session(run_dir: str | Path, session: dict[str, Any] | None = None) -> P
         sessions = []
     sessions.append(session if session is not None else collect())
     tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"sessions": sessions}, indent=1) + "\n")
+    write_text(tmp, json.dumps({"sessions": sessions}, indent=1) + "\n")
     os.replace(tmp, path)
     return path
 
@@ -262,5 +259,5 @@ def write_caption(text: str, path: str | Path) -> Path:
     """Write a caption (:func:`caption`, :func:`this_code`) to ``path``, one line."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text + "\n")
+    write_text(path, text + "\n")
     return path

@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 import yaml
 
+from gcnt.files import parse_yaml, write_text
 from gcnt.suggest import did_you_mean
 
 log = logging.getLogger(__name__)
@@ -628,12 +629,7 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     if resolved in chain:
         raise RecipeError(f"{path}: recipe bases form a cycle: {' -> '.join(map(str, chain))}")
     text = _read_text(path)
-    try:
-        data = yaml.load(text, Loader=RecipeLoader) or {}
-    except yaml.YAMLError as e:
-        raise RecipeError(f"{path}: not valid YAML ({_yaml_problem(e)})") from None
-    except RecursionError:
-        raise RecipeError(f"{path}: nested too deeply; not a recipe") from None
+    data = parse_yaml(text, path, "a recipe is YAML", RecipeError, loader=RecipeLoader) or {}
     if not isinstance(data, dict):
         raise RecipeError(f"{path}: a recipe must be a mapping of sections")
     if data and not any(isinstance(k, str) and k in _recipe_keys() for k in data):
@@ -797,4 +793,4 @@ def _device_here(device: str) -> bool:
 
 
 def save_recipe(recipe: Recipe, path: str | Path) -> None:
-    Path(path).write_text(yaml.safe_dump(recipe.to_dict(), sort_keys=False))
+    write_text(Path(path), yaml.safe_dump(recipe.to_dict(), sort_keys=False))

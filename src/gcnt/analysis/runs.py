@@ -22,10 +22,8 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from gcnt import plugins
-from gcnt.files import MiB, read_regular
+from gcnt.files import MiB, read_json, read_yaml
 from gcnt.suggest import existing_path
 
 RECIPE_FILE = "recipe.yaml"
@@ -113,6 +111,14 @@ def recipe_defaults() -> dict[str, Any]:
 
 class AnalysisError(ValueError):
     """Run directories that cannot give what was asked; the message names the path."""
+
+
+class InitFromCycleError(AnalysisError):
+    """Runs whose ``init_from`` records lead back to one of them."""
+
+
+#: the runs whose fingerprints are being worked out, through their ``init_from`` sources
+_FINGERPRINTING: list[Path] = []
 
 
 @dataclass(frozen=True)
@@ -217,6 +223,67 @@ def _get(d: Any, *path: str, default: Any = None) -> Any:
     return d
 
 
+def _whole(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _count(value: Any) -> bool:
+    """A whole number, or a float that is one (``2e4``)."""
+    return _whole(value) or (isinstance(value, float) and value.is_integer())
+
+
+def _strings(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
+
+
+def _scalar(value: Any) -> bool:
+    return isinstance(value, str | int | float | bool)
+
+
+#: the keys of a run's recipe the analysis reads, and what each must be (null: unset)
+_RUN_KEYS: tuple[tuple[tuple[str, ...], Any, str], ...] = (
+    (("seed",), _whole, "a whole number"),
+    (("task",), _scalar, "a name"),
+    (("benchmark",), _scalar, "a name"),
+    (("algo",), _scalar, "a name"),
+    (("label",), _scalar, "a name"),
+    (("init_from",), lambda v: isinstance(v, str), "a run directory"),
+    (("network",), lambda v: isinstance(v, dict), "a mapping"),
+    (("network", "name"), _scalar, "a name"),
+    (("env",), lambda v: isinstance(v, dict), "a mapping"),
+    (("env", "benchmark"), _scalar, "a name"),
+    (("env", "robots"), _strings, "a list of robot specs"),
+    (("env", "test_robots"), _strings, "a list of robot specs"),
+    (("eval",), lambda v: isinstance(v, dict), "a mapping"),
+    (("eval", "deterministic"), lambda v: isinstance(v, bool), "true or false"),
+    (("collector",), lambda v: isinstance(v, dict), "a mapping"),
+    (("collector", "total_frames"), _count, "a whole number"),
+    (("resolved",), lambda v: isinstance(v, dict), "a mapping"),
+    (("resolved", "init_from"), lambda v: isinstance(v, dict), "a mapping"),
+    (("resolved", "init_from", "run"), lambda v: isinstance(v, str), "a run directory"),
+    (("resolved", "init_from", "task"), _scalar, "a name"),
+    (("resolved", "init_from", "fingerprint"), lambda v: isinstance(v, str), "a fingerprint"),
+)
+
+
+def check_run_recipe(data: dict[str, Any], path: Path) -> None:
+    """An AnalysisError naming ``path`` and the key where a key the analysis reads is not what
+    ``gcnt train`` writes there (a seed that is not a whole number, robots that are not a list
+    of specs, an ``init_from`` record whose run is not a path), as ``gcnt eval`` refuses it."""
+    for keys, valid, what in _RUN_KEYS:
+        value = _get(data, *keys)
+        if value is not None and not valid(value):
+            raise AnalysisError(
+                f"{path}: {'.'.join(keys)} must be {what}, not {_shown(value)}; a run's "
+                "recipe.yaml is what gcnt train writes"
+            )
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else f"a {type(value).__name__}"
+
+
 def _flatten(d: dict[str, Any], prefix: str = "") -> Iterable[tuple[str, Any]]:
     """``(dotted key, value)`` of every value in nested mappings (an empty mapping has none),
     a whole number written as a float read as the integer (``2e4`` is ``20000``)."""
@@ -250,13 +317,10 @@ class Run:
     @cached_property
     def recipe(self) -> dict[str, Any]:
         path = self.path / RECIPE_FILE
-        raw = read_regular(path, MiB, "a run's recipe is YAML", AnalysisError)
-        try:
-            data = yaml.safe_load(raw) or {}
-        except yaml.YAMLError as e:
-            raise AnalysisError(f"{path}: cannot read the recipe ({e})") from e
+        data = read_yaml(path, MiB, "a run's recipe is YAML", AnalysisError) or {}
         if not isinstance(data, dict):
             raise AnalysisError(f"{path}: the recipe is not a mapping")
+        check_run_recipe(data, path)
         return data
 
     # --- identity (new field names first, then the old ones)
@@ -383,11 +447,23 @@ class Run:
         path = record.get("run")
         if not path or not (Path(path) / RECIPE_FILE).is_file():
             return None
+        here = self.path.resolve()
+        if here in _FINGERPRINTING:
+            raise InitFromCycleError(
+                f"{self.path / RECIPE_FILE}: resolved.init_from.run leads back to this run "
+                f"({' -> '.join(map(str, [*_FINGERPRINTING, here]))}); a run cannot start from "
+                "itself"
+            )
+        _FINGERPRINTING.append(here)
         try:
             source = Run(path)
             return source.task, source.fingerprint
+        except InitFromCycleError:
+            raise
         except AnalysisError:
             return None
+        finally:
+            _FINGERPRINTING.pop()
 
     @cached_property
     def fingerprint(self) -> str:
@@ -453,9 +529,8 @@ class Run:
         out = []
         for path in sorted((self.path / "eval").glob("*.json")):
             try:
-                raw = read_regular(path, 64 * MiB, "an evaluation is JSON", AnalysisError)
-                data = json.loads(raw)
-            except (AnalysisError, json.JSONDecodeError, UnicodeDecodeError):
+                data = read_json(path, 64 * MiB, "an evaluation is JSON", AnalysisError)
+            except AnalysisError:
                 continue
             if not isinstance(data, dict) or not isinstance(data.get("robots"), dict):
                 continue
@@ -585,5 +660,13 @@ def mean_stderr(values: Sequence[float]) -> tuple[float, float]:
 def default_out(paths: Sequence[str | Path]) -> Path:
     """Where figures go by default: ``<dir>/figures`` for one directory given, else ``figures``."""
     if len(paths) == 1 and Path(paths[0]).is_dir():
-        return Path(paths[0]) / "figures"
+        out = Path(paths[0]) / "figures"
+        if out.is_symlink() or (
+            out.exists() and not out.resolve().is_relative_to(Path(paths[0]).resolve())
+        ):
+            raise AnalysisError(
+                f"{out}: a link out of {paths[0]}; figures are written there only when it is "
+                "inside (remove the link, or give --out)"
+            )
+        return out
     return Path("figures")

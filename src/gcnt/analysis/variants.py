@@ -45,6 +45,7 @@ from gcnt.analysis.runs import (
     protocols_text,
     score,
 )
+from gcnt.files import write_text
 
 STATISTICS = ("mean", "iqm")
 
@@ -426,5 +427,5 @@ def write_json(summary: dict[str, Any], path: Path) -> Path:
     from gcnt.rl.run_dir import strict_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(strict_json(summary), indent=1, allow_nan=False))
+    write_text(path, json.dumps(strict_json(summary), indent=1, allow_nan=False))
     return path

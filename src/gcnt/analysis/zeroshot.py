@@ -29,6 +29,7 @@ from gcnt.analysis.runs import (
     protocols_text,
     score,
 )
+from gcnt.files import write_text
 
 
 def seed_score(
@@ -241,7 +242,7 @@ def write(
 
     out.mkdir(parents=True, exist_ok=True)
     md, tex, js = out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.json"
-    md.write_text(to_markdown(table, style) + (f"\n_{caption}_\n" if caption else ""))
-    tex.write_text(to_latex(table, style) + (f"% {caption}\n" if caption else ""))
-    js.write_text(json.dumps(strict_json(table), indent=1, allow_nan=False))
+    write_text(md, to_markdown(table, style) + (f"\n_{caption}_\n" if caption else ""))
+    write_text(tex, to_latex(table, style) + (f"% {caption}\n" if caption else ""))
+    write_text(js, json.dumps(strict_json(table), indent=1, allow_nan=False))
     return md, tex, js

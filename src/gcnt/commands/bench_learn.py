@@ -9,9 +9,10 @@ clears both margins; exits 1 otherwise.
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
+
+from gcnt.files import MiB, read_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,7 +43,7 @@ def learning_check(recipe_path: str, overrides: list[str], seed: int) -> dict:
         minutes = (time.perf_counter() - t0) / 60
         rows = run.read_metrics()
         evals = sorted((run.path / "eval").glob("step*.json"), key=lambda p: p.stat().st_mtime)
-        final = json.loads(evals[-1].read_text())["robots"]
+        final = read_json(evals[-1], 64 * MiB, "an evaluation is JSON", ValueError)["robots"]
     # the first logged return: episodes of the uniform-random exploration phase
     random_return = next(r["train_return/mean"] for r in rows if "train_return/mean" in r)
     return {

@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     run_dir = RunDir(path)
     check_network(recipe)
     check_benchmark(recipe, robots, f"--robots of run {run_dir.path}")
-    run_dir.eval_dir()  # a link out of the run directory is refused before any work
+    run_dir.check_links()  # a link out of the run directory is refused before any work
     state = run_dir.load_checkpoint()
     policy = state.get("policy") or {"actor": state["actor"]}  # "actor": checkpoints before 0.2
     if args.video:
@@ -213,6 +213,6 @@ def _videos(recipe, run_dir, policy: dict, robots: list, env_steps: int, steps: 
     from gcnt.rl.evaluate import render_policy
 
     for robot in robots:
-        path = run_dir.path / "videos" / f"{robot.name}-step{env_steps}.mp4"
+        path = run_dir.inside("videos") / f"{robot.name}-step{env_steps}.mp4"
         print(f"written: {render_policy(recipe, policy, path, robot=robot, steps=steps)}")
     return 0

@@ -56,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:  # a bad file or folder, a name taken: the message names it
         print(f"gcnt import-unimal: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as e:  # SIGTERM or Ctrl-C: the temporary folder is gone
+        how = str(e) or "stopped by SIGINT"
+        print(f"gcnt import-unimal: {how}; nothing was imported", file=sys.stderr)
+        return 143 if "SIGTERM" in how else 130
     total = sum(len(names) for names in imported.splits.values())
     print(f"imported {total} UNIMAL robots into {imported.folder}:")
     for split, names in imported.splits.items():

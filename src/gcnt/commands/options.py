@@ -77,12 +77,10 @@ def _names(text: str) -> dict[str, str]:
 
     path = Path(text)
     if "=" not in text and (path.suffix in (".yaml", ".yml", ".json") or path.is_file()):
-        import yaml
+        from gcnt.files import MiB, read_yaml
 
-        try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as e:
-            raise argparse.ArgumentTypeError(f"{text}: cannot read the names ({e})") from None
+        what = "a names file maps ids to display names in YAML or JSON"
+        data = read_yaml(path, MiB, what, argparse.ArgumentTypeError)
         if not isinstance(data, dict) or not all(
             isinstance(k, str) and isinstance(v, str | int | float) for k, v in data.items()
         ):

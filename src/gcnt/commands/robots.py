@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from gcnt.data_folders import MORPHOLOGIES_ENV, user_morphologies
+from gcnt.files import write_text
 from gcnt.morphology.catalogues import (
     catalogue_names,
     get_catalogue,
@@ -115,7 +116,7 @@ def _generate(n: int, seed: int, out: Path | None) -> int:
         return 2
     out.mkdir(parents=True, exist_ok=True)
     for s in range(seed, seed + n):
-        (out / f"{robot_name(s)}.xml").write_text(build_mjcf(generate(s)))
+        write_text(out / f"{robot_name(s)}.xml", build_mjcf(generate(s)))
     print(f"wrote {n} UNIMAL robots (seeds {seed}-{seed + n - 1}) to {out}")
     return 0
 

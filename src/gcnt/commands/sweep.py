@@ -224,10 +224,15 @@ def run(args: argparse.Namespace) -> int:
                 manifest = Manifest(
                     sweep_dir, specs, {"created": now(), "command": ["gcnt", *sys.argv[2:]]}
                 )
-        manifest.refresh()
         if args.status:
+            # a pool sweep being driven keeps its manifest current (a run is "running" from its
+            # start, "done" once its last step ended); otherwise the states are worked out
+            driven = manifest.executor == "pool" and SweepLock(manifest.dir).driver() is not None
+            if not driven:
+                manifest.refresh()
             print(manifest.table())
             return 0
+        manifest.refresh()
         manifest.save()
         if args.dry_run:
             print(manifest.table())
@@ -297,9 +302,10 @@ def run(args: argparse.Namespace) -> int:
     except SweepError as e:
         print(f"gcnt sweep: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted; run the same command again to resume", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        how = str(e) or "interrupted"
+        print(f"{how}; run the same command again to resume", file=sys.stderr)
+        return 143 if "SIGTERM" in how else 130
     manifest.refresh()
     manifest.save()
     print(manifest.table())

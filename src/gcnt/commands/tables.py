@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 from gcnt.commands.options import add_names_option, check_names, table_style
+from gcnt.files import write_text
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,8 +34,8 @@ def run(args: argparse.Namespace) -> int:
     md, data = parameter_tables(presets, table_style(args))
     caption = provenance.this_code("tables")  # no runs: the code that computed them
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "params.md").write_text(f"{md}\n\n_{caption}_\n")
-    (args.out / "params.json").write_text(json.dumps(data, indent=1))
+    write_text(args.out / "params.md", f"{md}\n\n_{caption}_\n")
+    write_text(args.out / "params.json", json.dumps(data, indent=1))
     cap = provenance.write_caption(caption, args.out / "params.caption.txt")
     print(md)
     print(caption)

@@ -108,6 +108,8 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
                 held.enter_context(run_lock(run_dir.path))
         from gcnt.rl.loop import prepare, train
 
+        if run_dir.path.is_dir():  # a link out of the run directory: refused before any work
+            run_dir.check_links()
         # robots, env and networks are built (and bad input reported) before anything is written
         prepared = prepare(recipe, resume=resume)
         held.enter_context(run_lock(run_dir.path))

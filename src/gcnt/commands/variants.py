@@ -23,6 +23,7 @@ import argparse
 from pathlib import Path
 
 from gcnt.commands.options import add_figure_options, check_names, figure_style
+from gcnt.files import write_text
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -80,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         figures += style.outputs(out / f"{args.name}-panels.png")
     caption = provenance.caption(r.path for r in runs)
     md = out / f"{args.name}.md"
-    md.write_text(f"{V.to_markdown(summary, stats, style)}\n_{caption}_\n")
+    write_text(md, f"{V.to_markdown(summary, stats, style)}\n_{caption}_\n")
     js = V.write_json(summary, out / f"{args.name}.json")
     print(V.to_markdown(summary, stats, style))
     missing = [s for s in sets if s not in summary]

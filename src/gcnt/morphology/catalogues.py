@@ -31,9 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from gcnt.data_folders import packaged_morphologies, user_morphologies
+from gcnt.files import MiB, read_text, read_yaml
 from gcnt.morphology.robot import Robot, load_robot
 from gcnt.morphology.smpenv import SMPENV_ROBOTS, build_mjcf, write_all
 from gcnt.suggest import did_you_mean
@@ -45,6 +44,9 @@ SPLITS: tuple[str, ...] = ("train", "test")
 #: Further split names a split file may declare: ``variants-<kind>``.
 VARIANT_SPLIT = re.compile(r"^variants-[a-z0-9_]+$")
 DEFAULT_SPLIT = "train"
+
+#: the largest benchmark split file read
+MAX_SPLIT_FILE_BYTES = 16 * MiB
 
 log = logging.getLogger(__name__)
 
@@ -160,13 +162,39 @@ def imported_catalogues(root: Path | None = None) -> dict[str, Path]:
     return _usable_imports(tuple(p for p in found if not p.name.startswith(".")))
 
 
+def read_split_file(path: Path) -> Any:
+    """The YAML value of a split file, read through :func:`gcnt.files.read_yaml` (a FIFO, a
+    device or a file too large or nested too deep is a BenchmarkFileError naming it)."""
+    return read_yaml(
+        path, MAX_SPLIT_FILE_BYTES, "a benchmark split file is YAML", BenchmarkFileError
+    )
+
+
 def split_keys(path: Path | None) -> list[str]:
     """The benchmark names of a split file, as written (unreadable: none)."""
     try:
-        raw = yaml.safe_load(path.read_text()) if path is not None else None
-    except (OSError, yaml.YAMLError):
+        raw = read_split_file(path) if path is not None else None
+    except BenchmarkFileError:
         return []
     return [str(k) for k in raw] if isinstance(raw, dict) else []
+
+
+def _import_damage(folder: Path, robots: Sequence[str]) -> str | None:
+    """Why the imported folder cannot be read (its split file unreadable, or naming a robot
+    whose file is gone), or None."""
+    try:
+        raw = read_split_file(folder / IMPORTED_INDEX)
+    except BenchmarkFileError as e:
+        return str(e)
+    if not isinstance(raw, dict) or not raw:
+        return f"{folder / IMPORTED_INDEX}: not a mapping of benchmark name -> splits"
+    have = set(robots)
+    for bench, splits in raw.items():
+        for split, names in (splits or {}).items() if isinstance(splits, dict) else ():
+            gone = [n for n in names or [] if isinstance(n, str) and n not in have]
+            if gone:
+                return f"{bench}:{split} names {gone[0]!r}, whose robot file is missing"
+    return None
 
 
 @functools.lru_cache(maxsize=8)
@@ -185,7 +213,16 @@ def _usable_imports(folders: tuple[Path, ...]) -> dict[str, Path]:
     out: dict[str, Path] = {}
     for folder in folders:
         cat = imported_catalogue(folder)
-        keys = [*cat.robot_names(), *split_keys(folder / IMPORTED_INDEX)]
+        robots = list(cat.robot_names())
+        damage = _import_damage(folder, robots)
+        if damage is not None:
+            log.warning(
+                "%s is left out: %s; import the set again (remove the folder first)",
+                folder,
+                damage,
+            )
+            continue
+        keys = [*robots, *split_keys(folder / IMPORTED_INDEX)]
         clash = next((k for k in keys if k in owner), None)
         if folder.name in owner or folder.name in out or clash is not None:
             what = clash if clash is not None else folder.name
@@ -301,10 +338,19 @@ def stale_files(
         path = root / rel
         if not path.is_file():
             problems.append(f"{path}: missing")
-        elif path.read_text() != text:
+        elif read_own_file(path) != text:
             problems.append(f"{path}: differs from the {maker}'s output")
     extra = sorted(p for p in (root / folder).glob("*.xml") if f"{folder}/{p.name}" not in expected)
     return problems + [f"{p}: not {kind}" for p in extra]
+
+
+def read_own_file(path: Path) -> str | None:
+    """The text of a file gcnt writes into the morphologies folder (None: unreadable, as
+    :func:`gcnt.files.read_text` refuses it), to compare with what it would write."""
+    try:
+        return read_text(path, MAX_SPLIT_FILE_BYTES, "gcnt writes it", BenchmarkFileError)
+    except BenchmarkFileError:
+        return None
 
 
 def _smpenv_check(root: Path) -> list[str]:
@@ -364,13 +410,7 @@ def _validate(raw: Any, source: Path, known: dict[str, str]) -> dict[str, dict[s
 
 @functools.lru_cache(maxsize=16)
 def _read_benchmarks(path: Path) -> dict[str, dict[str, list[str]]]:
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise BenchmarkFileError(f"{path}: cannot read benchmark file ({e.strerror})") from e
-    except yaml.YAMLError as e:
-        raise BenchmarkFileError(f"{path}: not valid YAML ({e})") from e
-    return _validate(raw, path, _name_index())
+    return _validate(read_split_file(path), path, _name_index())
 
 
 def load_benchmarks(

@@ -24,7 +24,8 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from gcnt.morphology.catalogues import Catalogue, morphologies_dir
+from gcnt.files import write_text
+from gcnt.morphology.catalogues import Catalogue, morphologies_dir, read_own_file
 from gcnt.morphology.robot import Robot, RobotFileError, load_robot
 
 CATALOGUE = "mjcf3d"
@@ -115,7 +116,7 @@ def split_yaml() -> str:
 
 def write_files(root: Path) -> list[Path]:
     path = root / SPLIT_FILE
-    path.write_text(split_yaml())
+    write_text(path, split_yaml())
     return [path]
 
 
@@ -123,7 +124,7 @@ def check_files(root: Path) -> list[str]:
     path = root / SPLIT_FILE
     if not path.is_file():
         return [f"{path}: missing"]
-    if path.read_text() != split_yaml():
+    if read_own_file(path) != split_yaml():
         return [f"{path}: differs from the split writer's output"]
     return []
 

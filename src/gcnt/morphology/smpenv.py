@@ -22,6 +22,7 @@ from pathlib import Path
 
 from dm_control import mjcf
 
+from gcnt.files import write_text
 from gcnt.suggest import did_you_mean
 
 #: Digits used when printing floats into the XML (every number in the tables has at most 7).
@@ -619,6 +620,6 @@ def write_all(out_dir: Path) -> list[Path]:
     paths = []
     for name in SMPENV_ROBOTS:
         path = out_dir / f"{name}.xml"
-        path.write_text(build_mjcf(name))
+        write_text(path, build_mjcf(name))
         paths.append(path)
     return paths

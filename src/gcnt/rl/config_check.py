@@ -38,10 +38,18 @@ def memory_bytes(device: str = "cpu") -> int | None:
     machine's physical memory, or the cgroup's limit or the process's address-space limit
     (``ulimit -v``, RLIMIT_AS) where that is lower (a Slurm job, a container, a shell limit);
     None where it cannot be read."""
+    found = memory_limit(device)
+    return None if found is None else found[0]
+
+
+def memory_limit(device: str = "cpu") -> tuple[int, str] | None:
+    """:func:`memory_bytes` and what sets it (``the memory of this machine``, ``this
+    process's address-space limit (ulimit -v) ...``), to say so when a run would not fit."""
     if str(device).startswith("cuda"):
         import torch
 
-        return int(torch.cuda.get_device_properties(torch.device(device)).total_memory)
+        total = int(torch.cuda.get_device_properties(torch.device(device)).total_memory)
+        return total, f"the memory of {device}"
     try:
         total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (AttributeError, ValueError, OSError):  # not a POSIX system
@@ -50,22 +58,30 @@ def memory_bytes(device: str = "cpu") -> int | None:
         limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
     except OSError:
         limit = "max"
-    have = min(total, int(limit)) if limit.isdigit() else total
+    have, what = total, "the memory of this machine"
+    if limit.isdigit() and int(limit) < total:
+        have, what = int(limit), "this job's memory limit (its cgroup's memory.max)"
     try:
         import resource
 
         soft, unlimited = resource.getrlimit(resource.RLIMIT_AS)[0], resource.RLIM_INFINITY
     except (ImportError, OSError, ValueError):  # not a POSIX system
-        return have
+        return have, what
     if soft == unlimited or soft <= 0:
-        return have
+        return have, what
     # the limit counts the address space already mapped (torch and its libraries: GBs)
     try:
         pages = int(Path("/proc/self/statm").read_text().split()[0])
         mapped = pages * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, IndexError):
         mapped = 0
-    return min(have, max(0, soft - mapped))
+    free = max(0, soft - mapped)
+    if free < have:
+        return free, (
+            f"what this process's address-space limit (ulimit -v, {_bytes(soft)}) leaves "
+            f"beside the {_bytes(mapped)} it has mapped"
+        )
+    return have, what
 
 
 def check_memory(nbytes: int, device: str, what: str, fix: str) -> None:
@@ -73,11 +89,11 @@ def check_memory(nbytes: int, device: str, what: str, fix: str) -> None:
     :func:`memory_bytes` of ``device`` (it could never fit); ``fix``: which setting to lower."""
     from gcnt.recipes import RecipeError
 
-    have = memory_bytes(device)
-    if have is not None and nbytes > have:
+    found = memory_limit(device)
+    if found is not None and nbytes > found[0]:
+        have, where = found
         raise RecipeError(
-            f"{what} would take {_bytes(nbytes)}, more than the {_bytes(have)} of memory on "
-            f"{'this machine' if not str(device).startswith('cuda') else device}; {fix}"
+            f"{what} would take {_bytes(nbytes)}, more than {_bytes(have)}: {where}; {fix}"
         )
 
 

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from gcnt.files import write_text
 from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe, run_robot_specs
@@ -220,7 +221,7 @@ def write_eval(
     tmp = path.with_suffix(".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text)
+        write_text(tmp, text)
         tmp.replace(path)
     except OSError as e:
         with contextlib.suppress(OSError):

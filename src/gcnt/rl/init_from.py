@@ -138,5 +138,9 @@ def network_sizes(recipe: Recipe) -> dict[str, Any]:
 
 
 def file_sha256(path: Path) -> str:
-    with open(path, "rb") as f:
+    from gcnt.files import open_regular
+    from gcnt.rl.run_dir import MAX_CHECKPOINT_BYTES, CheckpointError
+
+    what = "a checkpoint is the file gcnt train writes"
+    with open_regular(path, MAX_CHECKPOINT_BYTES, what, CheckpointError) as f:
         return hashlib.file_digest(f, "sha256").hexdigest()

@@ -17,13 +17,14 @@ import contextlib
 import logging
 import math
 import os
+import signal
 import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 import torch
@@ -55,6 +56,45 @@ log = logging.getLogger(__name__)
 
 class TrainingDivergedError(FloatingPointError):
     """Losses or weights turned NaN or infinite; the last good checkpoint is kept."""
+
+
+class WorkerDiedError(RuntimeError):
+    """A collector worker process ended during the run (killed: the OOM killer, ``kill -9``);
+    the last checkpoint is kept and the run resumes from it."""
+
+
+def _dead_worker(collector: Any, run: RunDir) -> WorkerDiedError | None:
+    """The error to report when one of ``collector``'s worker processes has ended (None: all
+    live, or the collector has no workers)."""
+    for i, proc in enumerate(getattr(collector, "procs", None) or []):
+        try:
+            code = proc.exitcode
+        except ValueError:  # closed by the collector as it stopped the others
+            continue
+        if code is None or code == 0:
+            continue
+        how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+        hint = " (out of memory?)" if code == -signal.SIGKILL else ""
+        return WorkerDiedError(
+            f"collector worker {i} ended ({how}){hint}; what was checkpointed is kept: "
+            f"continue with gcnt train --resume {run.path}"
+        )
+    return None
+
+
+def _end_workers(collector: Any) -> None:
+    """End the worker processes still alive beside a dead one (SIGTERM, then SIGKILL)."""
+    procs = [p for p in getattr(collector, "procs", None) or [] if not getattr(p, "_closed", False)]
+    for proc in procs:
+        with contextlib.suppress(ValueError, OSError):
+            if proc.is_alive():
+                proc.terminate()
+    for proc in procs:
+        with contextlib.suppress(ValueError, OSError):
+            proc.join(10)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(10)
 
 
 def check_network(recipe: Recipe) -> None:
@@ -237,15 +277,26 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
                     bar.update(data.numel())  # 100% once the last batch's update is done
                     if stop.requested():
                         stop_here(recipe, [run], [algo], [logger], [cadence], [env_steps])
-                    if multi:
+                    if multi:  # a dead worker would never acknowledge the new weights
+                        if (dead := _dead_worker(collector, run)) is not None:
+                            raise dead
                         collector.update_policy_weights_()
                     if row is not None:
                         bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
                     if env_steps >= total:
                         break
+            except Exception as e:  # a worker that died: one line, not the collector's traceback
+                dead = e if isinstance(e, WorkerDiedError) else None
+                dead = dead or (_dead_worker(collector, run) if multi else None)
+                if dead is None:
+                    raise
+                _end_workers(collector)
+                collector = None  # its shutdown would wait for the dead worker's answer
+                raise dead from None
             finally:
                 bar.close()
-                collector.shutdown()
+                if collector is not None:
+                    collector.shutdown()
     else:
         log.info(
             "%s already trained %d of %d env steps; nothing to do (a video: gcnt eval %s "
@@ -603,6 +654,6 @@ def _evaluate(
             logger.log_scalar(f"eval_return/{name}", res["mean"], step=env_steps)
     log.info("eval at %d steps written to %s", env_steps, Path(path))
     if recipe.eval.video:
-        out = render_policy(recipe, policy, run.path / "videos" / f"step{env_steps}.mp4")
+        out = render_policy(recipe, policy, run.inside("videos") / f"step{env_steps}.mp4")
         log.info("video written to %s", out)
     return results

@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gcnt.files import GiB, read_regular
+from gcnt.files import GiB, read_regular, too_deep
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +74,9 @@ def read_metrics(path: str | Path) -> list[dict[str, Any]]:
             continue
         try:
             row = json.loads(line)
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):
+            row = None
+        if isinstance(row, dict) and too_deep(row):
             row = None
         if isinstance(row, dict):
             rows.append(read_metrics_row(row))

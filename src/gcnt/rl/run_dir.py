@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from gcnt import provenance
-from gcnt.files import GiB, open_regular
+from gcnt.files import GiB, open_regular, write_text
 from gcnt.recipes import Recipe, RecipeError, load_run_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
@@ -37,6 +37,8 @@ log = logging.getLogger(__name__)
 RECIPE_FILE = "recipe.yaml"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINT = "checkpoints/last.pt"
+#: what gcnt writes into inside a run directory: folders, and the log it appends to
+WRITTEN = ("checkpoints", "eval", "videos", "wandb", "csv", "figures", METRICS_FILE)
 
 
 class CheckpointError(ValueError):
@@ -76,18 +78,29 @@ class RunDir:
     def checkpoint_path(self) -> Path:
         return self.path / CHECKPOINT
 
-    def eval_dir(self) -> Path:
-        """``eval/`` of the run, where evaluations are written: a RunDirError if it is a link
-        or leads out of the run directory (results would land somewhere else)."""
-        path = self.path / "eval"
+    def inside(self, name: str) -> Path:
+        """``name`` (one of :data:`WRITTEN`) in the run directory, where gcnt writes: a
+        RunDirError if it is a link or leads out of the run directory (what is written would
+        land somewhere else: another run's checkpoint overwritten on resume)."""
+        path = self.path / name
         if path.is_symlink() or (
             path.exists() and not path.resolve().is_relative_to(self.path.resolve())
         ):
             raise RunDirError(
-                f"{path}: a link out of the run directory; evaluations are written only inside "
+                f"{path}: a link out of the run directory; gcnt writes only inside "
                 f"{self.path} (remove the link)"
             )
         return path
+
+    def check_links(self) -> None:
+        """A RunDirError (:meth:`inside`) for the first of :data:`WRITTEN` that is a link: a
+        command that writes into the run checks them all before any work."""
+        for name in WRITTEN:
+            self.inside(name)
+
+    def eval_dir(self) -> Path:
+        """``eval/`` of the run, where evaluations are written (see :meth:`inside`)."""
+        return self.inside("eval")
 
     @property
     def buffers_dir(self) -> Path:
@@ -183,7 +196,7 @@ class RunDir:
         rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
         tmp = self.metrics_path.with_suffix(".tmp")
         with _writing(tmp, "the metrics"):
-            tmp.write_text("".join(metrics_line(r) for r in rows))
+            write_text(tmp, "".join(metrics_line(r) for r in rows))
             os.replace(tmp, self.metrics_path)
 
     # --- checkpoints
@@ -193,6 +206,7 @@ class RunDir:
         the file loads with ``torch.load(..., weights_only=True)``. A failed write (a full
         disk, no permission) removes the temporary file, keeps the previous checkpoint and is
         a RunDirError."""
+        self.inside("checkpoints")
         state = plain_state({**state, "rng": rng_state()})
         tmp = self.checkpoint_path.with_suffix(".tmp")
         kept = (
@@ -414,7 +428,7 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
     if cfg.backend == "csv":
         from torchrl.record.loggers import CSVLogger
 
-        return CSVLogger(exp_name=name, log_dir=str(run.path / "csv"))
+        return CSVLogger(exp_name=name, log_dir=str(run.inside("csv")))
     from torchrl.record.loggers import WandbLogger
 
     os.environ.setdefault("WANDB_SILENT", "true")
@@ -442,7 +456,7 @@ def wandb_id(run: RunDir, name: str) -> str:
     ``run-<id>.wandb`` file after it), so that a resumed run continues the same W&B run even
     after its directory was moved or its ``logger.name`` changed; for a new run, ``name`` and
     a hash of the directory's path."""
-    for f in sorted((run.path / "wandb").glob("*run-*/run-*.wandb")):
+    for f in sorted(run.inside("wandb").glob("*run-*/run-*.wandb")):
         return f.stem[len("run-") :]
     return _slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}")
 

@@ -81,6 +81,9 @@ def finish_step(spec: RunSpec, what: str, rc: int) -> None:
 #: so trains its seeds one by one; a stopped or killed one (another code) is left as it is
 REFUSED = 2
 
+#: seconds a stopped child has to write its checkpoint before it is killed
+STOP_WAIT_S = 120
+
 #: overrides that differ between the seeds of one experiment in a sweep
 _PER_SEED = ("seed=", "run_dir=", "logger.name=")
 
@@ -225,6 +228,10 @@ def run_local(
             todo.append(([spec], commands(spec)))
         return True
 
+    def terminate(signum: int, _frame: object) -> None:  # as Ctrl-C: the children stop first
+        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, terminate)
     try:
         while todo or active:
             while free and todo:
@@ -270,16 +277,20 @@ def run_local(
                     )
                 free.append(slot)
     except KeyboardInterrupt:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM: the children still end
         for proc, *_ in active.values():
             proc.send_signal(signal.SIGTERM)
         for proc, group, _, fh, _ in active.values():
             try:
-                proc.wait(timeout=30)
+                proc.wait(timeout=STOP_WAIT_S)
             except subprocess.TimeoutExpired:
                 proc.kill()
+                proc.wait()
             fh.close()
             for spec in group:
                 spec.state = spec.files_state()
         manifest.save()
         raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return manifest

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.analysis.runs import RECIPE_FILE, Run
+from gcnt.files import KiB, MiB, read_json, read_text, write_text
 from gcnt.sweep.spec import RunSpec
 from gcnt.sweep.status import SweepError, now, read_record, slurm_states
 
@@ -23,6 +24,8 @@ MANIFEST = "manifest.json"
 
 
 LOCK = ".sweep.lock"
+#: the largest manifest read
+MAX_MANIFEST_BYTES = 256 * MiB
 
 
 class Manifest:
@@ -47,10 +50,10 @@ class Manifest:
         path = Path(sweep_dir) / MANIFEST
         if not path.is_file():
             raise SweepError(f"{sweep_dir}: no {MANIFEST}; is this a sweep directory?")
+        data = read_json(path, MAX_MANIFEST_BYTES, "a sweep manifest is JSON", SweepError)
         try:
-            data = json.loads(path.read_text())
             runs = [RunSpec(**r) for r in data.pop("runs")]
-        except (json.JSONDecodeError, KeyError, TypeError) as e:
+        except (AttributeError, KeyError, TypeError) as e:
             raise SweepError(f"{path}: not a sweep manifest ({e})") from None
         here = Path(sweep_dir).absolute()
         was = data.get("location")
@@ -111,7 +114,7 @@ class Manifest:
             stored.append(asdict(copy))
         data = {**self.meta, "runs": stored}
         tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(data, indent=1))
+        write_text(tmp, json.dumps(data, indent=1))
         os.replace(tmp, self.path)
         return self.path
 
@@ -178,11 +181,24 @@ class SweepLock:
     def __init__(self, sweep_dir: Path) -> None:
         self.path = sweep_dir / LOCK
 
+    def driver(self) -> int | None:
+        """The pid of the live process on this host that drives the sweep now (None: none)."""
+        if not self.path.exists():
+            return None
+        try:
+            pid = int(read_text(self.path, KiB, "a sweep lock holds a process id", SweepError))
+            os.kill(pid, 0)
+        except (ValueError, ProcessLookupError, OverflowError):
+            return None
+        except PermissionError:
+            return pid
+        return pid
+
     def __enter__(self) -> SweepLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.path.exists():
             try:
-                pid = int(self.path.read_text().strip())
+                pid = int(read_text(self.path, KiB, "a sweep lock holds a process id", SweepError))
                 os.kill(pid, 0)
             except (ValueError, ProcessLookupError):
                 pass  # stale
@@ -194,7 +210,7 @@ class SweepLock:
                         f"{self.path.parent}: the sweep is being run by process {pid} "
                         f"(remove {self.path} if that is wrong)"
                     )
-        self.path.write_text(str(os.getpid()))
+        write_text(self.path, str(os.getpid()))
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -16,6 +16,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gcnt.files import MiB, read_json, write_text
+
 if TYPE_CHECKING:
     from gcnt.sweep.spec import RunSpec
 
@@ -60,9 +62,12 @@ def record_path(sweep_dir: str | Path, spec: RunSpec) -> Path:
 
 def read_record(sweep_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
     """What the run's last job wrote about itself (None: no job ran it yet)."""
+    path = record_path(sweep_dir, spec)
+    if not path.exists():
+        return None
     try:
-        data = json.loads(record_path(sweep_dir, spec).read_text())
-    except (OSError, json.JSONDecodeError):
+        data = read_json(path, MiB, "a run's record is JSON", SweepError)
+    except SweepError:
         return None
     return data if isinstance(data, dict) else None
 
@@ -84,7 +89,7 @@ def write_record(sweep_dir: str | Path, spec: RunSpec, state: str, **extra: Any)
         **extra,
     }
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
+    write_text(tmp, json.dumps(data, indent=1))
     os.replace(tmp, path)
 
 

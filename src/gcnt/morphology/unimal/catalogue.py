@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+from gcnt.files import write_text
 from gcnt.morphology.catalogues import Catalogue, morphologies_dir, stale_files
 from gcnt.morphology.robot import Robot, RobotFileError, load_robot, robot_from_xml
 from gcnt.morphology.unimal.generate import generate
@@ -108,7 +109,7 @@ def write_files(root: Path) -> list[Path]:
     paths = []
     for rel, text in expected_files().items():
         path = root / rel
-        path.write_text(text)
+        write_text(path, text)
         paths.append(path)
     return paths
 

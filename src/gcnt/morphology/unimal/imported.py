@@ -27,6 +27,9 @@ benchmark robots (``Robot.catalogue == "unimal"``): every UNIMAL recipe, world a
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import logging
 import os
 import re
 import shutil
@@ -38,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from gcnt.data_folders import packaged_morphologies, user_morphologies
-from gcnt.files import read_regular
+from gcnt.files import read_regular, write_bytes, write_text
 from gcnt.morphology.catalogues import (
     IMPORTED_INDEX,
     Catalogue,
@@ -70,6 +73,9 @@ _LAYOUT = (
     "MetaMorph's unimals_100 holds train/, test/, dynamics/ and kinematics/, each with "
     "xml/<robot>.xml"
 )
+
+
+log = logging.getLogger(__name__)
 
 
 class UnimalImportError(ValueError):
@@ -324,12 +330,26 @@ def import_unimals(
     """Import MetaMorph's set at ``path`` as the catalogue ``name`` into the robot-set folder
     ``out`` (default: the user's, :func:`gcnt.data_folders.user_morphologies`). Every file is
     checked before the folder appears: a bad file is a one-line error naming it, and nothing is
-    left behind."""
+    left behind. One import into a folder at a time (a second is refused); SIGTERM ends it as
+    Ctrl-C does, and the temporary folders of killed imports are removed."""
     out = Path(os.path.abspath(out)) if out is not None else user_morphologies()
+    if out.exists() and not out.is_dir():
+        raise UnimalImportError(
+            f"--out {out}: not a folder; give the robot-set folder to import into"
+        )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UnimalImportError(f"--out {out}: cannot create the folder ({e.strerror})") from None
+    with _import_lock(out), _stop_on_sigterm():
+        _remove_stale(out)
+        return _import_into(path, name, out)
+
+
+def _import_into(path: str | Path, name: str, out: Path) -> ImportedSet:
     defined = defined_in(out)
     check_name(name, out, defined)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".{name}.importing-{os.getpid()}"
+    tmp = out / f"{_TMP_PREFIX.format(name=name)}{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     splits: dict[str, list[str]] = {}
     origin: dict[str, str] = {}
@@ -340,12 +360,13 @@ def import_unimals(
                 data = check_member(member)
                 dest = tmp / member.set / "xml" / f"{member.name}.xml"
                 dest.parent.mkdir(parents=True, exist_ok=True)
-                dest.write_bytes(data)
+                write_bytes(dest, data)
                 splits.setdefault(SETS[member.set], []).append(member.name)
-        (tmp / IMPORTED_INDEX).write_text(split_yaml(name, str(Path(path).resolve()), splits))
-        (tmp / ".gitignore").write_text(
+        write_text(tmp / IMPORTED_INDEX, split_yaml(name, str(Path(path).resolve()), splits))
+        write_text(
+            tmp / ".gitignore",
             "# MetaMorph's robot files, imported by `gcnt import-unimal`: not part of the "
-            "repository\n*\n"
+            "repository\n*\n",
         )
         tmp.rename(out / name)
     except BaseException:
@@ -353,6 +374,94 @@ def import_unimals(
         raise
     refresh_catalogues()
     return ImportedSet(out / name, splits)
+
+
+#: the folder an import writes before it is renamed into place: ``.<name>.importing-<pid>``
+_TMP_PREFIX = ".{name}.importing-"
+_TMP = re.compile(r"^\.(?P<name>.+)\.importing-(?P<pid>[0-9]+)$")
+#: the lock file of a morphologies folder being imported into
+IMPORT_LOCK = ".import.lock"
+
+
+@contextmanager
+def _import_lock(out: Path) -> Iterator[None]:
+    """One import into a morphologies folder at a time (a POSIX lock on ``IMPORT_LOCK``, which
+    the kernel drops however the holder ends); a second one is a UnimalImportError. The holder
+    removes the file when it is done (a file that was replaced meanwhile is locked afresh)."""
+    import fcntl
+
+    lock = out / IMPORT_LOCK
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise UnimalImportError(
+                f"{lock}: cannot create the import lock ({e.strerror})"
+            ) from None
+        try:
+            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            pid = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            os.close(fd)
+            if e.errno not in (errno.EACCES, errno.EAGAIN):
+                raise UnimalImportError(f"{lock}: cannot lock it ({e.strerror})") from None
+            raise UnimalImportError(
+                f"{out}: another gcnt import-unimal (process {pid or '?'}) is importing into this "
+                "folder; wait for it to end, then run this one again"
+            ) from None
+        try:
+            now = os.stat(lock)
+        except FileNotFoundError:
+            now = None
+        held = os.fstat(fd)
+        if now is not None and (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino):
+            break
+        os.close(fd)  # its holder removed it as this one opened it: lock the new file
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            lock.unlink()
+        os.close(fd)
+
+
+@contextmanager
+def _stop_on_sigterm() -> Iterator[None]:
+    """SIGTERM ends the import as Ctrl-C does: the temporary folder is removed on the way out
+    (the main thread only; elsewhere signals keep their handlers)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
+
+    old = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _remove_stale(out: Path) -> None:
+    """Remove the temporary folders of imports into ``out`` whose process is gone (killed)."""
+    for entry in out.iterdir():
+        m = _TMP.match(entry.name)
+        if m is None or not entry.is_dir() or entry.is_symlink():
+            continue
+        pid = int(m.group("pid"))
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            shutil.rmtree(entry, ignore_errors=True)
+            log.info("removed %s, left by an import that was killed", entry)
+        except PermissionError:
+            pass  # another user's live process
 
 
 def _check_unique(member: Member, origin: dict[str, str], robots: dict[str, str]) -> None:

@@ -362,6 +362,14 @@ def make_slot_env(
     return TransformedEnv(env, Compose(RewardSum(), StepCounter()))
 
 
+def make_worker_env(torch_seed: int, *args, **kwargs) -> TransformedEnv:
+    """:func:`make_slot_env` in a collector's worker process, whose own random state (the
+    policy's action noise there) starts from ``torch_seed``: a run is repeated exactly for a
+    seed and a number of workers."""
+    torch.manual_seed(torch_seed)
+    return make_slot_env(*args, **kwargs)
+
+
 class PPO(Algorithm):
     """PPO behind the run loop: slot envs and robot sampling, normalisation, iterations."""
 
@@ -418,7 +426,8 @@ class PPO(Algorithm):
             sampled = o.robot_sampling == "sampled"
             makers = [
                 functools.partial(
-                    make_slot_env,
+                    make_worker_env,
+                    self.recipe.seed + 1000 * (w + 1) + 7,
                     self.recipe,
                     self.robots,
                     per,
@@ -430,6 +439,11 @@ class PPO(Algorithm):
                 )
                 for w in range(o.workers)
             ]
+            log.info(
+                "ppo.collector=multi: %d worker processes; the run repeats for its seed and "
+                "ppo.workers (another worker count draws other random streams)",
+                o.workers,
+            )
             if not sampled and per % len(self.robots):
                 raise RecipeError(
                     f"ppo.collector: multi with fixed robots needs num_envs / workers ({per}) to "

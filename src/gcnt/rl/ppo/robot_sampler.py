@@ -16,6 +16,7 @@ worker processes (a multi-process collector) read the updates made in the traine
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 import weakref
 
@@ -29,10 +30,33 @@ def _unlink(path: str) -> None:
         pass
 
 
+#: the probabilities file of process <pid>: ``gcnt-robot-probs-<pid>-<random>.f64``
+PROBS_PREFIX = "gcnt-robot-probs-"
+_PROBS_FILE = re.compile(rf"^{PROBS_PREFIX}(?P<pid>[0-9]+)-[^/]*\.f64$")
+
+
+def remove_stale_probs(folder: str | None) -> None:
+    """Remove the probabilities files of processes that are gone (a run killed with SIGKILL
+    cannot remove its own): the pid in a file's name is its trainer's, on this host."""
+    for entry in os.listdir(folder or tempfile.gettempdir()):
+        m = _PROBS_FILE.match(entry)
+        if m is None:
+            continue
+        try:
+            os.kill(int(m.group("pid")), 0)
+        except ProcessLookupError:
+            _unlink(os.path.join(folder or tempfile.gettempdir(), entry))
+        except (PermissionError, OverflowError):
+            pass  # another user's live process
+
+
 def shared_probs(num_robots: int) -> np.memmap:
-    """Uniform probabilities in a memory-mapped file, removed when the array is collected."""
+    """Uniform probabilities in a memory-mapped file named after this process, removed when
+    the array is collected (and by the next run, if this process is killed first)."""
     folder = "/dev/shm" if os.path.isdir("/dev/shm") else None
-    fd, path = tempfile.mkstemp(prefix="gcnt-robot-probs-", suffix=".f64", dir=folder)
+    remove_stale_probs(folder)
+    prefix = f"{PROBS_PREFIX}{os.getpid()}-"
+    fd, path = tempfile.mkstemp(prefix=prefix, suffix=".f64", dir=folder)
     os.close(fd)
     probs = np.memmap(path, np.float64, "w+", shape=(num_robots,))
     probs[:] = 1.0 / num_robots

@@ -103,13 +103,22 @@ def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
         paths = [run.path.resolve() for run in runs]
         if len(set(paths)) < len(paths):
             raise RecipeError("--seeds: two seeds would share one run directory")
+        for run in runs:  # a run already there is refused before any directory is made
+            if run.path.is_dir():
+                run.check_new()
+        made = [run for run in runs if not run.path.exists()]
         held = run_locks([run.path for run in runs])  # one writer per run directory
-        held.__enter__()
+        try:
+            held.__enter__()
+        except BaseException:
+            _discard(made)
+            raise
         try:
             for run, recipe in zip(runs, recipes, strict=True):
                 run.create(recipe)
         except BaseException:
             held.__exit__(None, None, None)
+            _discard(made)
             raise
     except BaseException:
         for p in prepared:
@@ -120,6 +129,13 @@ def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
     finally:
         held.__exit__(None, None, None)
     return runs
+
+
+def _discard(made: list[RunDir]) -> None:
+    """Remove the run directories this command made before it was refused (they hold no
+    more than the lock file and what ``create`` began)."""
+    for run in made:
+        run.discard_failed_start()
 
 
 def _lockstep(
