@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 import yaml
 
-from gcnt.files import parse_yaml, write_text
+from gcnt.files import parse_yaml, read_yaml, write_text
 from gcnt.suggest import did_you_mean
 
 log = logging.getLogger(__name__)
@@ -502,8 +502,13 @@ def _recorded_plugins(run_dir: str) -> list[str]:
     """The plugins a run directory's recipe records ([] where it cannot be read: the run's own
     checks name a missing or broken source)."""
     try:
-        data = yaml.safe_load((Path(run_dir) / "recipe.yaml").read_text()) or {}
-    except (OSError, ValueError, yaml.YAMLError):
+        data = (
+            read_yaml(
+                Path(run_dir) / "recipe.yaml", MAX_RECIPE_BYTES, "a recipe is YAML", RecipeError
+            )
+            or {}
+        )
+    except RecipeError:
         return []
     found = data.get("plugins") if isinstance(data, dict) else None
     return [p for p in found if isinstance(p, str)] if isinstance(found, list) else []
