@@ -155,14 +155,15 @@ def test_a_full_disk_while_training_is_one_line(recipe_file, tmp_path, capsys, m
 
 def _read_only(monkeypatch, run: Path) -> None:
     """Writes under ``run`` fail as in a read-only directory (root ignores chmod)."""
-    write_text = Path.write_text
+    for method in ("write_text", "write_bytes"):
+        real = getattr(Path, method)
 
-    def refuse(self, *args, **kwargs):
-        if str(self).startswith(str(run)):
-            raise OSError(errno.EROFS, "Read-only file system", str(self))
-        return write_text(self, *args, **kwargs)
+        def refuse(self, *args, real=real, **kwargs):
+            if str(self).startswith(str(run)):
+                raise OSError(errno.EROFS, "Read-only file system", str(self))
+            return real(self, *args, **kwargs)
 
-    monkeypatch.setattr(Path, "write_text", refuse)
+        monkeypatch.setattr(Path, method, refuse)
 
 
 def test_eval_of_a_read_only_run_still_writes_json_elsewhere(
