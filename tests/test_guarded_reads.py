@@ -15,11 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from gcnt.data_folders import MORPHOLOGIES_ENV
 from gcnt.files import MAX_DEPTH, MiB, read_json, read_regular, read_yaml
-from gcnt.morphology.catalogues import (
-    MORPHOLOGIES_ENV,
-    refresh_catalogues,
-)
+from gcnt.morphology.catalogues import refresh_catalogues
 from gcnt.provenance import PROVENANCE_FILE, add_session
 
 SRC = Path(__file__).parents[1] / "src" / "gcnt"
