@@ -34,6 +34,7 @@ from gcnt.nn import (
     count_parameters,
     graph_lookup_of,
     limb_mean,
+    make_config,
     make_network,
     register_network,
     unregister_network,
@@ -350,3 +351,27 @@ def test_each_world_has_the_originals_decoder_depth():
         head = next(m for m in net.modules() if isinstance(m, (LimbHead, HyperHead)))
         kind = HyperLinear if name == "modumorph" else torch.nn.Linear
         assert sum(isinstance(m, kind) for m in head.modules()) == 3  # 2 hidden + output
+
+
+def test_the_gcn_reads_limb_types_or_the_limb_context():
+    """``gcn_input``: with limb types (default) a robot and a variant of it (same tree, other
+    gears or masses: another context) get the same GCN output; with the context (the registered
+    ablation ``gcnt_gcn_context``) they do not."""
+    import dataclasses
+
+    robot = unimal_robots()[0]
+    variant = dataclasses.replace(robot, name=robot.name + "-variant")
+    table = unimal_table(rs=[robot, variant])  # equal structure, different contexts
+    mask = table["limbs", "mask"][0]
+    outs = {}
+    for name in ("gcnt", "gcnt_gcn_context"):
+        net = make_network(name, "ppo_critic", table=table, keep_intermediates=True,
+                           **UNIMAL, **small("gcnt")).double()  # fmt: skip
+        gcn = net(double(batch(table, [0, 1], f=F_UNIMAL)))["limbs", "gcn"]
+        outs[name] = gcn[0, mask], gcn[1, mask]
+    assert torch.equal(*outs["gcnt"])
+    assert not torch.allclose(*outs["gcnt_gcn_context"])
+    assert make_config("gcnt_gcn_context", "unimal").gcn_input == "context"
+    assert make_config("gcnt", "unimal").gcn_input == "types"
+    with pytest.raises(ValueError, match="gcn_input must be 'types' or 'context'"):
+        make_config("gcnt", "unimal", gcn_input="tpyes")

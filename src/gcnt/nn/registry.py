@@ -124,6 +124,13 @@ register_network(
 register_network(
     "gcnt_hn", GCNTConfig, gcnt_backbone, fixed={"hypernet": True}, description="GCNT+HN"
 )
+register_network(
+    "gcnt_gcn_context",
+    GCNTConfig,
+    gcnt_backbone,
+    fixed={"gcn_input": "context"},
+    description="GCNT, GCN on the limb context",
+)
 register_network("amorpheus", AmorpheusConfig, amorpheus_backbone, description="AMORPHEUS")
 register_network("swat", SWATConfig, swat_backbone, description="SWAT")
 register_network("smp", SMPConfig, smp_backbone, description="SMP")

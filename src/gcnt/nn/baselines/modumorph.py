@@ -52,7 +52,11 @@ def modumorph_backbone(cfg: ModuMorphConfig, io: NetIO, table: TensorDictBase) -
     else:
         stages.append(("transformer", transformer_stage(encoder_of(cfg), K.EMBED)))
     head = limb_head_stage(
-        cfg.d_model, io.out_dim, hfield_width=io.hfield_width, hyper_dim=hn, hidden=io.decoder_hidden
+        cfg.d_model,
+        io.out_dim,
+        hfield_width=io.hfield_width,
+        hyper_dim=hn,
+        hidden=io.decoder_hidden,
     )
     stages.append(("head", head))
     return Backbone(stages, static_keys=(K.CONTEXT,), name="ModuMorph")
