@@ -90,7 +90,9 @@ class World:
 WORLDS: dict[str, World] = {
     "ft": World("ft", 0.5),
     "incline": World("incline", 0.2),
-    "mt": World("mt", 0.3, height_map=True, side_limit=True, edits_model=True, decoder_hidden=(64,)),
+    "mt": World(
+        "mt", 0.3, height_map=True, side_limit=True, edits_model=True, decoder_hidden=(64,)
+    ),
     "obstacles": World(
         "obstacles",
         0.5,
