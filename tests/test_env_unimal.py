@@ -171,6 +171,35 @@ def test_metamorph_layout_file(robots):
     env.close()
 
 
+def test_a_metamorph_file_is_assembled_as_metamorph_assembles_it(robots):
+    """MetaMorph's files say ``filterparent="disable"`` and list exclusions; MetaMorph keeps only
+    their torso body, motors and sensors and enables the parent filter. gcnt's generated files
+    enable it themselves and keep their mirrored-pair exclusions."""
+    from pathlib import Path
+
+    from gcnt.envs.unimal.worlds import world_model
+    from gcnt.morphology import robot_from_xml
+
+    text = (Path(__file__).parent / "data" / "unimal" / "unimal_fixture.xml").read_text()
+    stray = '<geom name="stray" type="sphere" size="0.1" pos="5 5 1"/></worldbody>'
+    robot = robot_from_xml(text.replace("</worldbody>", stray), name="fixture")
+    model = world_model(robot, "ft")
+    assert not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+    assert model.nexclude == 0
+    assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "stray") == -1
+    assert model.nu == robot.num_motors and model.nsensor == 4  # the file's sensors
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    parent = model.body_parentid
+    for c in data.contact[: data.ncon]:  # no parent-child contact survives
+        b1, b2 = model.geom_bodyid[c.geom1], model.geom_bodyid[c.geom2]
+        assert parent[b1] != b2 and parent[b2] != b1
+    generated = robots[0]
+    kept = world_model(generated, "ft")
+    assert kept.nexclude == generated.xml.count("<exclude")
+    assert not kept.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+
+
 def test_action_slots_drive_their_hinges(robots):
     env = UnimalEnv(robots[:1], world="ft", seed=0, num_threads=1)
     env.reset()
@@ -211,13 +240,16 @@ def test_context_scaling(robots):
         model = env.sim(i)[0]
         obs = _expected_obs(model, mujoco.MjData(model), r, 12)
         raw = obs[:, np.r_[13:30, 32:41, 43:52]]
-        exp = np.clip(-1 + 2 * (raw - LO) / (HI - LO + 1e-8), -1, 1)
+        # ModuMorph's get_context: the -1 only where the bounds differ
+        exp = np.clip(-1.0 * (LO != HI) + 2 * (raw - LO) / (HI - LO + 1e-8), -1, 1)
         for slot in range(2):  # empty slots (no joint, torso, padding) stay 0
             empty = ~obs[:, 40 + 11 * slot].astype(bool)  # gear 0 <=> no joint
             exp[empty, 17 + 9 * slot : 26 + 9 * slot] = 0
         exp[r.num_limbs :] = 0
         np.testing.assert_allclose(ctx[i], exp, atol=1e-6)
     assert np.abs(ctx).max() <= 1.0
+    real = env.table["limbs", "mask"].numpy()
+    assert (ctx[:, :, [9, 13]][real] == 0).all()  # body_iquat[3], geom_quat[3]: bounds 0, 0
     # the env emits the table's context
     td = env.reset()
     assert torch.equal(td["limbs", "context"], env.table["limbs", "context"][env.local_ids])

@@ -34,6 +34,7 @@ from gcnt.nn import (
     count_parameters,
     graph_lookup_of,
     limb_mean,
+    make_config,
     make_network,
     register_network,
     unregister_network,
@@ -257,6 +258,14 @@ def test_unimal_parameter_counts_match_the_original_models():
     assert rows[mt, "metamorph"] == 3_531_587 - 2_560
     assert rows[ft, "modumorph"] == 5_232_774 - (2 * 6_784 + 258 + 129)
     assert rows[mt, "modumorph"] == 8_608_262 - (2 * 6_784 + 12_482 + 12_417)
+    # Obstacles' decoder has two hidden layers of 64 (MT: one): 2 x (64 x 64 + 64) = 8,320 more
+    # per method, and ModuMorph's unused plain decoder grows by as much
+    obs = next(w for w in worlds if w.lower() == "obstacles")
+    assert rows[obs, "metamorph"] == 3_539_907 - 2_560
+    assert rows[obs, "metamorph_star"] == 3_536_835 - 2_560
+    assert rows[obs, "modumorph"] == 9_689_862 - (2 * 6_784 + 12_482 + 12_417 + 8_320)
+    for method in ("metamorph", "metamorph_star", "gcnt"):  # plain decoders: one Linear(64→64)
+        assert rows[obs, method] - rows[mt, method] == 8_320
     # GCNT adds about 1% to MetaMorph*; ModuMorph is 1.6x (FT) to 2.4x (MT) GCNT
     assert 1.0 < rows[ft, "gcnt"] / rows[ft, "metamorph_star"] < 1.015
     assert 1.5 < rows[ft, "modumorph"] / rows[ft, "gcnt"] < 1.6
@@ -295,3 +304,74 @@ def test_params_command_at_a_recipes_sizes_compares_the_ratios_with_the_papers_s
     params.run_recipe(str(root / "ft.yaml"), methods)
     first = capsys.readouterr().out
     assert "ModuMorph/GCNT (actor + critic): 3.041" in first and "NOT within 10%" in first
+
+
+@pytest.mark.parametrize("name", ["gcnt", "gcnt_hn", "metamorph", "modumorph", "amorpheus", "swat"])
+def test_transformer_layers_start_as_copies_of_one_layer(name):
+    """Every original builds its stack with torch's ``_get_clones`` (deep copies of one layer),
+    so the layers are equal at initialisation (and train apart)."""
+    from gcnt.nn.layers import ContextTransformer, TransformerEncoder
+
+    table = unimal_table() if name in ("gcnt", "gcnt_hn", "metamorph", "modumorph") else None
+    kw = dict(table=table, **UNIMAL) if table is not None else {}
+    if table is None:
+        from nn_helpers import F_OBS, robots, table_of
+
+        kw = dict(table=table_of(robots()), obs_dim=F_OBS, num_actions=1)
+    net = make_network(name, "ppo_actor" if table is not None else "td3_actor", **kw, **small(name))
+    stacks = [m for m in net.modules() if isinstance(m, (TransformerEncoder, ContextTransformer))]
+    assert stacks
+    for stack in stacks:
+        assert len(stack.layers) >= 2
+        first = stack.layers[0].state_dict()
+        for layer in stack.layers[1:]:
+            other = layer.state_dict()
+            assert all(torch.equal(first[k], other[k]) for k in first)
+            assert all(
+                p.data_ptr() != q.data_ptr()
+                for p, q in zip(stack.layers[0].parameters(), layer.parameters(), strict=True)
+            )
+
+
+def test_each_world_has_the_originals_decoder_depth():
+    """``DECODER_DIMS``: none on FT and Incline (default), [64] on MT (configs/csr.yaml),
+    [64, 64] on Obstacles (configs/obstacle.yaml); training builds its networks with them."""
+    from gcnt.envs.benchmark import get_benchmark
+    from gcnt.nn.layers import HyperLinear
+    from gcnt.nn.stages import HyperHead, LimbHead
+
+    hidden = get_benchmark("unimal").decoder_hidden
+    assert hidden == {"ft": (), "incline": (), "mt": (64,), "obstacles": (64, 64)}
+    table = unimal_table()
+    for name in ("metamorph", "modumorph"):
+        net = make_network(
+            name, "ppo_critic", table=table, hfield_dim=H_SMALL, decoder_hidden=(64, 64),
+            **UNIMAL, **small(name),
+        )  # fmt: skip
+        head = next(m for m in net.modules() if isinstance(m, (LimbHead, HyperHead)))
+        kind = HyperLinear if name == "modumorph" else torch.nn.Linear
+        assert sum(isinstance(m, kind) for m in head.modules()) == 3  # 2 hidden + output
+
+
+def test_the_gcn_reads_limb_types_or_the_limb_context():
+    """``gcn_input``: with limb types (default) a robot and a variant of it (same tree, other
+    gears or masses: another context) get the same GCN output; with the context (the registered
+    ablation ``gcnt_gcn_context``) they do not."""
+    import dataclasses
+
+    robot = unimal_robots()[0]
+    variant = dataclasses.replace(robot, name=robot.name + "-variant")
+    table = unimal_table(rs=[robot, variant])  # equal structure, different contexts
+    mask = table["limbs", "mask"][0]
+    outs = {}
+    for name in ("gcnt", "gcnt_gcn_context"):
+        net = make_network(name, "ppo_critic", table=table, keep_intermediates=True,
+                           **UNIMAL, **small("gcnt")).double()  # fmt: skip
+        gcn = net(double(batch(table, [0, 1], f=F_UNIMAL)))["limbs", "gcn"]
+        outs[name] = gcn[0, mask], gcn[1, mask]
+    assert torch.equal(*outs["gcnt"])
+    assert not torch.allclose(*outs["gcnt_gcn_context"])
+    assert make_config("gcnt_gcn_context", "unimal").gcn_input == "context"
+    assert make_config("gcnt", "unimal").gcn_input == "types"
+    with pytest.raises(ValueError, match="gcn_input must be 'types' or 'context'"):
+        make_config("gcnt", "unimal", gcn_input="tpyes")

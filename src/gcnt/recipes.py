@@ -60,7 +60,7 @@ class CollectorConfig:
 @dataclass
 class NetworkConfig:
     #: the method: gcnt | amorpheus | swat | smp | mlp | ... (``gcnt params`` lists them;
-    #: ablations gcnt_no_gcn, gcnt_no_wl, gcnt_no_dist, gcnt_dist_first)
+    #: ablations gcnt_no_gcn, gcnt_no_wl, gcnt_no_dist, gcnt_dist_first, gcnt_gcn_context)
     name: str = "gcnt"
     #: size preset: smpenv (paper appendix table 1) or unimal (table 3); unset: the benchmark's
     preset: str | None = None

@@ -28,6 +28,7 @@ STRUCTURAL_METHODS = (
     "gcnt_no_wl",
     "gcnt_no_dist",
     "gcnt_dist_first",
+    "gcnt_gcn_context",
     "swat",
 )
 DEFAULT_ROBOTS = ("CWHH++:all",)

@@ -22,6 +22,7 @@ METHOD_NAMES: dict[str, str] = {
     "gcnt_no_wl": "GCNT w/o WL",
     "gcnt_no_dist": "GCNT w/o distance bias",
     "gcnt_dist_first": "GCNT (distance bias in layer 1)",
+    "gcnt_gcn_context": "GCNT (GCN on the limb context)",
     "gcnt_hn": "GCNT+HN",
     "amorpheus": "AMORPHEUS",
     "swat": "SWAT",
@@ -48,6 +49,7 @@ TASKS = (
     "study-Walker++",
     "study-UNIMAL-FT",
     "study-UNIMAL-FT-fair",
+    "study-UNIMAL100-FT-fair",
 )
 
 

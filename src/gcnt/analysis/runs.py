@@ -37,6 +37,7 @@ METHOD_ORDER = (
     "gcnt_no_wl",
     "gcnt_no_dist",
     "gcnt_dist_first",
+    "gcnt_gcn_context",
     "swat",
     "amorpheus",
     "smp",

@@ -29,6 +29,12 @@ Choices the paper leaves open, made here:
   ModuMorph code's (embedding U(±0.1), last decoder layer U(±0.01), bias 0). The fusion
   projection, added to the token embedding, is initialised as the embedding; the GCN keeps
   PyTorch's defaults.
+* **The GCN's input** (``gcn_input``): the one-hot limb type (``"types"``, default). The paper
+  gives the GCN one-hot limb types, which UNIMAL does not define (its limbs have no names):
+  gcnt's UNIMAL types are four purely topological ones (torso, proximal, inner, distal), so the
+  structural branch is the same for a robot and every kinematic or dynamic variant of it. The
+  registered ablation ``gcnt_gcn_context`` reads the limb context the hypernetworks read
+  (``limbs/context``) instead.
 * **GCNT+HN** (``hypernet=True``): the encoder and the decoder become ModuMorph's hypernetwork
   layers (per-limb weights generated from ``limbs/context``); the decoder keeps GCNT's input
   [output ‖ limbs/input (‖ height map)]. Everything else is GCNT's.
@@ -75,8 +81,12 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
         stages.append(("encoder", encoder))
         embeddings.append(encoder.module)
     if cfg.use_gcn:
-        stages.append(("gcn", gcn_stage(cfg.num_limb_types, cfg.gcn_width, cfg.gcn_layers)))
-        static += [K.TYPE, K.ADJ]
+        gcn_ctx = 0
+        if cfg.gcn_input == "context":
+            gcn_ctx = context_width(table, "GCNT with gcn_input='context'")
+        gcn = gcn_stage(cfg.num_limb_types, cfg.gcn_width, cfg.gcn_layers, gcn_ctx)
+        stages.append(("gcn", gcn))
+        static += [K.CONTEXT if gcn_ctx else K.TYPE, K.ADJ]
     if cfg.use_wl:
         static.append(K.WL)
     hidden_key = K.EMBED
@@ -98,9 +108,16 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     enc = encoder_of(cfg, bias_mode)
     stages.append(("transformer", transformer_stage(enc, hidden_key, cfg.use_dist_bias)))
     head = limb_head_stage(
-        cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width, hyper_dim=hyper
+        cfg.d_model,
+        io.out_dim,
+        raw_dim=io.in_dim,
+        hfield_width=io.hfield_width,
+        hyper_dim=hyper,
+        hidden=io.decoder_hidden,
     )
     stages.append(("head", head))
     # the hypernetwork's generated decoder has its own init (HyperLinear)
     init_like_original(cfg.init, embeddings=embeddings, decoder=None if hyper else head.module)
-    return Backbone(stages, tuple(static), name="GCNT+HN" if cfg.hypernet else "GCNT")
+    return Backbone(
+        stages, tuple(dict.fromkeys(static)), name="GCNT+HN" if cfg.hypernet else "GCNT"
+    )

@@ -27,7 +27,9 @@ from gcnt.nn.layers import (
 )
 
 #: the height map enters every method the same way: MLP H → 64 → 64 (ReLU) of the root key
-#: ``hfield``, joined to each limb's features; the decoder then has one hidden layer of 64
+#: ``hfield``, joined to each limb's features; the decoder's hidden layers are the world's (the
+#: originals' ``DECODER_DIMS``: none on FT and Incline, [64] on MT, [64, 64] on Obstacles), one
+#: of this width where no world says
 HFIELD_WIDTH = 64
 DECODER_HIDDEN = 64
 
@@ -109,28 +111,41 @@ class GCNLayer(nn.Module):
 
 
 class LimbGCN(nn.Module):
-    """The GCN module: H⁰ = one-hot limb type projected to ``width`` (Linear, no bias), then
-    ``layers`` :class:`GCNLayer`. Â is built per sample from ``graph/adj`` with padding excluded,
-    so padded limbs do not leak into real ones; the output is zero on padded limbs."""
+    """The GCN module: H⁰ = each limb's input projected to ``width`` (Linear, no bias), then
+    ``layers`` :class:`GCNLayer`. The input is the one-hot limb type (``num_types`` types), or
+    with ``context_dim`` the limb's static context (``limbs/context``, the hypernetworks' input).
+    Â is built per sample from ``graph/adj`` with padding excluded, so padded limbs do not leak
+    into real ones; the output is zero on padded limbs."""
 
-    def __init__(self, num_types: int, width: int, layers: int) -> None:
+    def __init__(self, num_types: int, width: int, layers: int, context_dim: int = 0) -> None:
         super().__init__()
-        self.num_types = num_types
-        self.embed = nn.Linear(num_types, width, bias=False)
+        self.num_types, self.context_dim = num_types, context_dim
+        self.embed = nn.Linear(context_dim or num_types, width, bias=False)
         self.layers = nn.ModuleList(GCNLayer(width) for _ in range(layers))
 
-    def forward(self, types: Tensor, adj: Tensor, mask: Tensor) -> Tensor:
-        if types.device.type == "cpu" and types.numel() and int(types.max()) >= self.num_types:
-            raise ValueError(f"limb type id {int(types.max())} >= num_limb_types {self.num_types}")
-        h = self.embed(F.one_hot(types.clamp_min(0), self.num_types).to(self.embed.weight.dtype))
+    def forward(self, limbs: Tensor, adj: Tensor, mask: Tensor) -> Tensor:
+        dtype = self.embed.weight.dtype
+        if self.context_dim:
+            h = self.embed(limbs.to(dtype))
+        else:
+            types = limbs
+            if types.device.type == "cpu" and types.numel() and int(types.max()) >= self.num_types:
+                raise ValueError(
+                    f"limb type id {int(types.max())} >= num_limb_types {self.num_types}"
+                )
+            h = self.embed(F.one_hot(types.clamp_min(0), self.num_types).to(dtype))
         a_hat = normalized_adjacency(adj, mask, h.dtype)
         for layer in self.layers:
             h = layer(h, a_hat)
         return torch.where(mask.unsqueeze(-1), h, h.new_zeros(()))
 
 
-def gcn_stage(num_types: int, width: int, layers: int) -> TensorDictModule:
-    return TensorDictModule(LimbGCN(num_types, width, layers), [K.TYPE, K.ADJ, K.MASK], [K.GCN])
+def gcn_stage(num_types: int, width: int, layers: int, context_dim: int = 0) -> TensorDictModule:
+    """The GCN over limb types (``limbs/type``), or over the limb context with ``context_dim``."""
+    limbs = K.CONTEXT if context_dim else K.TYPE
+    return TensorDictModule(
+        LimbGCN(num_types, width, layers, context_dim), [limbs, K.ADJ, K.MASK], [K.GCN]
+    )
 
 
 # ------------------------------------------------------------------------ morphology fusion
@@ -453,11 +468,12 @@ def limb_head_stage(
     raw_dim: int = 0,
     hfield_width: int = 0,
     hyper_dim: int = 0,
+    hidden: Sequence[int] = (),
 ) -> TensorDictModule:
     """The decoder stage ``limbs/features`` (‖ ``limbs/input`` if ``raw_dim``) (‖ ``hfield_embed``
-    if ``hfield_width``) → ``limbs/out``; per-limb generated weights if ``hyper_dim`` (the
-    hypernetwork context width, read from ``limbs/hn_context``)."""
-    hidden = (DECODER_HIDDEN,) if hfield_width else ()
+    if ``hfield_width``) → ``hidden`` (ReLU) → ``limbs/out``; per-limb generated weights if
+    ``hyper_dim`` (the hypernetwork context width, read from ``limbs/hn_context``)."""
+    hidden = tuple(hidden)
     in_keys = (
         [K.FEATURES] + ([K.INPUT] if raw_dim else []) + ([K.HFIELD_EMBED] if hfield_width else [])
     )
