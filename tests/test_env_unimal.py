@@ -171,6 +171,35 @@ def test_metamorph_layout_file(robots):
     env.close()
 
 
+def test_a_metamorph_file_is_assembled_as_metamorph_assembles_it(robots):
+    """MetaMorph's files say ``filterparent="disable"`` and list exclusions; MetaMorph keeps only
+    their torso body, motors and sensors and enables the parent filter. gcnt's generated files
+    enable it themselves and keep their mirrored-pair exclusions."""
+    from pathlib import Path
+
+    from gcnt.envs.unimal.worlds import world_model
+    from gcnt.morphology import robot_from_xml
+
+    text = (Path(__file__).parent / "data" / "unimal" / "unimal_fixture.xml").read_text()
+    stray = '<geom name="stray" type="sphere" size="0.1" pos="5 5 1"/></worldbody>'
+    robot = robot_from_xml(text.replace("</worldbody>", stray), name="fixture")
+    model = world_model(robot, "ft")
+    assert not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+    assert model.nexclude == 0
+    assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "stray") == -1
+    assert model.nu == robot.num_motors and model.nsensor == 4  # the file's sensors
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    parent = model.body_parentid
+    for c in data.contact[: data.ncon]:  # no parent-child contact survives
+        b1, b2 = model.geom_bodyid[c.geom1], model.geom_bodyid[c.geom2]
+        assert parent[b1] != b2 and parent[b2] != b1
+    generated = robots[0]
+    kept = world_model(generated, "ft")
+    assert kept.nexclude == generated.xml.count("<exclude")
+    assert not kept.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+
+
 def test_action_slots_drive_their_hinges(robots):
     env = UnimalEnv(robots[:1], world="ft", seed=0, num_threads=1)
     env.reset()

@@ -18,10 +18,13 @@ An episode ends (terminated) when the torso's height above the local ground is a
 ``fall_ratio × (z0 − 0.2)``, z0 being the torso's z in the robot file (its height when its
 lowest point is 0.2 m above a flat floor); on MT and Obstacles also when the torso's |y| ≥ 19.
 
-:func:`world_model` compiles a robot file together with its world: the world's assets and geoms
-go into the robot's ``<asset>`` and ``<worldbody>`` (geoms of the world body, so the robot's body,
-joint and actuator ids do not change), plus a ``track`` camera on the torso and, where the robot
-file has no light at world level, the light UNIMAL's files carry (:data:`WORLD_LIGHT`). This runs
+:func:`world_model` compiles a robot file together with its world as MetaMorph assembles an agent
+(``envs/modules/agent.py``): of a UNIMAL file it keeps the compile settings, the torso body, the
+motors and the sensors, with parent-child contacts filtered (``filterparent`` enabled; MetaMorph's
+files say ``disable`` and lose their ``<contact>`` exclusions, as in MetaMorph). The world's
+assets and geoms go into the robot's ``<asset>`` and ``<worldbody>`` (geoms of the world body, so
+the robot's body, joint and actuator ids do not change), plus a ``track`` camera on the torso and,
+where the file (after that) has no light at world level, MetaMorph's light (:data:`WORLD_LIGHT`). This runs
 once per sub-env model at env construction; terrain changes later edit the compiled model in
 place (no recompiling).
 """
@@ -212,6 +215,8 @@ def world_xml(robot: Robot, world: str) -> str:
         root = ET.fromstring(robot.xml)
     except ET.ParseError as e:  # the loader already parsed it; only a hand-made Robot gets here
         raise RobotFileError(f"{robot.source}: not valid XML ({e})") from e
+    if robot.family == "unimal":
+        _as_metamorph_agent(root, robot)
     assets, geoms = _world_parts(world)
     asset = root.find("asset")
     if asset is None:
@@ -241,6 +246,30 @@ def world_xml(robot: Robot, world: str) -> str:
     if vis.find("map") is None:
         ET.SubElement(vis, "map", {"zfar": "200"})
     return ET.tostring(root, encoding="unicode")
+
+
+def _as_metamorph_agent(root: ET.Element, robot: Robot) -> None:
+    """Keep of a UNIMAL file what MetaMorph's agent assembly keeps (``envs/modules/agent.py``,
+    ``create_agent_xml``): the file's compile settings, its torso body, motors and sensors, with
+    parent-child contacts filtered (``filterparent`` enabled whatever the file says). The file's
+    other world-level elements go; so does its ``<contact>`` section where the file turns
+    ``filterparent`` off (MetaMorph's and DERL's files, whose exclusions MetaMorph drops). gcnt's
+    generated files turn it on themselves and keep their exclusions (their mirrored pairs)."""
+    option = root.find("option")
+    if option is None:
+        option = ET.SubElement(root, "option")
+    flag = option.find("flag")
+    if flag is None:
+        flag = ET.SubElement(option, "flag")
+    if flag.get("filterparent") == "disable":
+        for contact in root.findall("contact"):
+            root.remove(contact)
+    flag.set("filterparent", "enable")
+    worldbody = root.find("worldbody")
+    if worldbody is not None:
+        for child in list(worldbody):
+            if not (child.tag == "body" and child.get("name") == robot.body_names[0]):
+                worldbody.remove(child)
 
 
 def world_model(robot: Robot, world: str) -> mujoco.MjModel:
