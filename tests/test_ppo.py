@@ -23,6 +23,7 @@ from gcnt.rl.ppo.config import PPOConfig
 from gcnt.rl.ppo.learner import PPO, NormalizedPolicy, lr_factor, make_gae
 from gcnt.rl.run_dir import RunDir, plain_state
 
+OBS_KEY = ("limbs", "obs")
 TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
 
 
@@ -59,12 +60,12 @@ def tiny_recipe(run_dir, benchmark="smpenv", **ppo):
 
 
 @torch.no_grad()
-def rollout(prep, steps=20):
+def rollout(prep, steps=20, policy=None):
     """One iteration's data [N, T] as the collector gathers it (sampled actions)."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     with set_exploration_type(ExplorationType.RANDOM):
-        return prep.env.rollout(steps, prep.algo.policy(), break_when_any_done=False)
+        return prep.env.rollout(steps, policy or prep.algo.policy(), break_when_any_done=False)
 
 
 def yaml_recipe(tmp_path, benchmark):
@@ -267,7 +268,10 @@ def test_checkpointed_state_continues_exactly_and_freezes_obs_stats_for_eval(tmp
     b = prepare(tiny_recipe(tmp_path / "b"))
     b.algo.load_state_dict(torch.load(path, weights_only=True))
     assert b.algo.learner.iteration == 1 and b.algo.learner.lr_now() == a.algo.learner.lr_now()
-    data2 = rollout(a)  # fresh episodes (a rollout starts with a reset), as after a resume
+    # fresh episodes (a rollout starts with a reset), as after a resume, collected by a policy
+    # that leaves the statistics alone, so that both learners start the iteration equal
+    frozen = NormalizedPolicy(a.algo.learner.obs_norm, a.algo.learner.actor)
+    data2 = rollout(a, policy=frozen)
     a.algo.scaler.ret[:] = 0.0  # episode lengths restart with the env (StepCounter)
     for algo in (a.algo, b.algo):
         torch.manual_seed(5)
@@ -364,3 +368,70 @@ def test_kl_thresholds_per_method_and_world_follow_table_5():
             r = load_recipe(ROOT / f"recipes/unimal/{world}.yaml", [f"network.name={method}"])
             assert r.ppo.kl_threshold(method) == kl, (world, method)
             assert r.env.world == world and r.env.benchmark == "unimal"
+
+
+@pytest.mark.parametrize("world", ["ft", "incline", "mt", "obstacles"])
+def test_metamorph_runs_as_its_authors_ran_it(world):
+    """MetaMorph's code stops at KL_TARGET_COEF 20 x 0.01 and never leaves training mode (its
+    embedding dropout is on while collecting); the other methods keep the paper's table 5."""
+    root = Path(__file__).parents[1] / "recipes" / "unimal"
+    ppo = load_recipe(root / f"{world}.yaml", ["network.name=metamorph"]).algo_config
+    assert ppo.kl_threshold("metamorph") == 0.2 and ppo.dropout_while_collecting("metamorph")
+    for other in ("gcnt", "gcnt_hn", "modumorph", "metamorph_star"):
+        assert ppo.kl_threshold(other) in (0.05, 0.03)
+        assert not ppo.dropout_while_collecting(other)
+
+
+def test_collect_dropout_keeps_the_network_in_training_mode(tmp_path):
+    net = {"name": "metamorph", "kwargs": TINY_NET}
+    for on in (True, False):
+        d = tiny_recipe(tmp_path / str(on), benchmark="unimal").to_dict()
+        recipe = recipe_from_dict({**d, "network": net, "ppo": {**d["ppo"], "collect_dropout": on}})
+        prep = prepare(recipe)
+        learner = prep.algo.learner
+        assert learner.actor.training is on and learner.critic.training is on
+        list(learner.learn(rollout(prep)))
+        assert learner.actor.training is on and learner.critic.training is on
+        prep.env.close()
+    with pytest.raises(ValueError, match="collect_dropout.metamorph: expected true or false"):
+        recipe_from_dict(
+            {**d, "ppo": {**d["ppo"], "collect_dropout": {"default": False, "metamorph": 1}}}
+        )
+
+
+def test_observations_are_normalised_from_the_reset_on(tmp_path):
+    """As ``VecNormalize`` does: every observation the collector gives the policy, from the
+    reset on, joins the statistics before it is normalised, so iteration 0 is normalised too;
+    the update reuses what the policy acted on."""
+    from gcnt.rl.loop import make_collector
+    from gcnt.rl.ppo.learner import SEEN_OBS
+    from gcnt.rl.ppo.normalize import merge_moments
+
+    recipe = tiny_recipe(tmp_path, benchmark="unimal")
+    prep = prepare(recipe)
+    algo = prep.algo
+    norm = algo.learner.obs_norm
+    collector = make_collector(recipe, prep.env, algo.collect_settings(0))
+    data = next(iter(collector)).reshape(4, -1)
+    collector.shutdown()
+    obs, mask = data.get(("limbs", "obs")), data.get(("limbs", "mask"))
+    m = mask.unsqueeze(-1).double()
+    assert torch.equal(norm.count, 1e-4 + m.sum((0, 1)))  # every step, nothing else
+    # step 0: the reset observations alone make the statistics that normalise them
+    x0, m0 = obs[:, 0].double(), m[:, 0]
+    n0 = m0.sum(0)
+    b_mean = (x0 * m0).sum(0) / n0
+    b_var = ((x0 - b_mean) ** 2 * m0).sum(0) / n0
+    mean0, var0, _ = merge_moments(0.0, 1.0, 1e-4, b_mean, b_var, n0)  # the prior count 1e-4
+    seen = data.get(SEEN_OBS).double()
+    ref0 = ((x0 - mean0) / (var0 + 1e-8).sqrt()).clamp(-10, 10) * m0
+    np.testing.assert_allclose(seen[:, 0], ref0, atol=1e-5)
+    # the update's observations are those the policy acted on; a next observation is the
+    # following step's unless the episode ended there
+    batch = algo.learner.normalized(data)
+    assert torch.equal(batch.get(OBS_KEY), data.get(SEEN_OBS))
+    done = data.get(("next", "done")).squeeze(-1)
+    nxt = batch.get(("next", *OBS_KEY))
+    for n, t in zip(*torch.nonzero(~done[:, :-1], as_tuple=True), strict=True):
+        assert torch.equal(nxt[n, t], seen[n, t + 1])
+    prep.env.close()

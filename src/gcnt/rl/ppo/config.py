@@ -52,6 +52,11 @@ class PPOConfig:
     #: name to threshold with a ``default`` entry (the paper's table 5 differs per method and
     #: world). <= 0: never stop
     kl_stop: float | dict[str, float] = field(default_factory=lambda: {"default": 0.05})
+    #: dropout (in networks that have any) also on while collecting and while computing the
+    #: iteration's values, as MetaMorph's code runs (its network never leaves training mode);
+    #: off: dropout only in the update. A bool, or a mapping from network name to bool with a
+    #: ``default`` entry
+    collect_dropout: bool | dict[str, bool] = field(default_factory=lambda: {"default": False})
     #: Adam learning rate (peak), epsilon, and the schedule: linear warm-up from
     #: ``warmup_start`` x lr over ``warmup_iterations``, times a cosine decay over the run's
     #: iterations ("cosine") or a constant ("constant")
@@ -81,6 +86,12 @@ class PPOConfig:
         if isinstance(self.kl_stop, dict):
             return float(self.kl_stop.get(network, self.kl_stop["default"]))
         return float(self.kl_stop)
+
+    def dropout_while_collecting(self, network: str) -> bool:
+        """Whether method ``network`` collects with its dropout on (``collect_dropout``)."""
+        if isinstance(self.collect_dropout, dict):
+            return bool(self.collect_dropout.get(network, self.collect_dropout["default"]))
+        return bool(self.collect_dropout)
 
     def check_recipe(self, recipe) -> None:
         """The ``compile:`` switches PPO cannot honour: a ValueError naming the switch."""
@@ -121,6 +132,18 @@ class PPOConfig:
             for name, v in self.kl_stop.items():
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise ValueError(f"kl_stop.{name}: expected a number, got {v!r}")
+        if isinstance(self.collect_dropout, dict):
+            if "default" not in self.collect_dropout:
+                raise ValueError(
+                    "collect_dropout: a mapping needs a 'default' entry, got keys "
+                    f"{sorted(self.collect_dropout)}"
+                )
+            bad = {k: v for k, v in self.collect_dropout.items() if not isinstance(v, bool)}
+        else:
+            bad = {} if isinstance(self.collect_dropout, bool) else {"": self.collect_dropout}
+        for name, v in bad.items():
+            key = f"collect_dropout.{name}" if name else "collect_dropout"
+            raise ValueError(f"{key}: expected true or false, got {v!r}")
         if self.collector == "multi" and self.num_envs % self.workers:
             raise ValueError(
                 f"collector 'multi': workers ({self.workers}) must divide num_envs "

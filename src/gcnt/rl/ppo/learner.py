@@ -8,15 +8,18 @@ without replacement for the mini-batches, and the shared run loop's collector. S
 One iteration, read top to bottom (:meth:`PPOLearner.learn`):
 
 1. ``num_envs`` envs step ``steps_per_env`` times in lockstep with the policy's sampled actions
-   (dropout off); observations are normalised with the statistics frozen for this iteration;
+   (dropout off unless ``collect_dropout``); as a ``VecNormalize`` wrapper does, every
+   observation from the reset on joins the running statistics and is then normalised with them,
+   and the update reuses the normalised observations the policy acted on;
 2. rewards are divided by the running std of the discounted return (clipped);
 3. GAE (gamma, lambda) with the critic, advantages normalised over the iteration;
 4. ``epochs`` passes over the data in mini-batches; before each mini-batch step, if
    mean(log pi_old - log pi) of the mini-batch exceeds the method's threshold, the rest of the
    iteration is skipped (KL early stop); Adam with a warm-up + cosine learning rate and
    gradient-norm clipping;
-5. the observation statistics merge this iteration's observations (used from the next one), and
-   the robot sampler updates its probabilities from the finished episodes' lengths.
+5. the robot sampler updates its probabilities from the finished episodes' lengths (with the
+   ``multi`` collector, whose workers normalise with copies of the statistics, the statistics
+   also merge the iteration's observations here).
 
 With ``robot_sampling: sampled`` the envs are slots: each takes a robot drawn by
 :class:`~gcnt.rl.ppo.robot_sampler.RobotSampler` at every reset (``BatchedMujocoEnv.use_robot_pool``).
@@ -64,24 +67,47 @@ log = logging.getLogger(__name__)
 _BATCH_KEYS = (MORPH_ID, OBS, ACTION, LOG_PROB, VALUE, "advantage", "value_target", HFIELD)
 
 
-class NormalizedPolicy(TensorDictModuleBase):
-    """``actor`` on normalised ``limbs/obs``; the input TensorDict keeps the raw observation."""
+#: the normalised observation the collecting policy acted on (kept beside the raw ``limbs/obs``)
+SEEN_OBS = ("limbs", "obs_seen")
 
-    def __init__(self, norm: ObsNormalizer | None, actor: TensorDictModuleBase):
+
+class NormalizedPolicy(TensorDictModuleBase):
+    """``actor`` on normalised ``limbs/obs``; the input TensorDict keeps the raw observation.
+
+    ``track``: the collecting policy, as a ``VecNormalize`` env wrapper (MetaMorph, ModuMorph):
+    every observation it is given, from the reset on, first joins the statistics and is then
+    normalised with them; the normalised observation is written to :data:`SEEN_OBS`. The same
+    observations given twice in a row join once (torchrl's collector asks the policy about the
+    reset observations once to learn its output keys, then again for the first step)."""
+
+    def __init__(
+        self, norm: ObsNormalizer | None, actor: TensorDictModuleBase, track: bool = False
+    ):
         super().__init__()
-        self.norm, self.actor = norm, actor
+        self.norm, self.actor, self.track = norm, actor, track and norm is not None
         self.in_keys = list(dict.fromkeys([*actor.in_keys, MASK]))
         self.out_keys = [k for k in actor.out_keys if k != OBS]
+        if self.track:
+            self.out_keys.append(SEEN_OBS)
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         if self.norm is None:
             return self.actor(td)
+        if self.track:
+            obs = td.get(OBS)
+            last = getattr(self, "_last_obs", None)
+            if last is None or last.shape != obs.shape or not torch.equal(last, obs):
+                self.norm.update(obs, td.get(MASK))
+                self._last_obs = obs.clone()
         sub = td.select(*self.actor.in_keys, strict=False)
-        sub.set(OBS, self.norm(td.get(OBS), td.get(MASK)))
+        seen = self.norm(td.get(OBS), td.get(MASK))
+        sub.set(OBS, seen)
         out = self.actor(sub)
         for key in self.out_keys:
             if key in out.keys(True):
                 td.set(key, out.get(key))
+        if self.track:
+            td.set(SEEN_OBS, seen)
         return td
 
 
@@ -121,8 +147,9 @@ class PPOLearner:
         self.recipe, self.config, self.iterations = recipe, o, iterations
         self.actor = make_net(recipe, env, "ppo_actor", ppo_std=o.std, ppo_init_std=o.init_std)
         self.critic = make_net(recipe, env, "ppo_critic")
-        self.actor.eval()  # dropout off except in the update
-        self.critic.eval()
+        # dropout off except in the update, unless the method collects with it on
+        self.collect_dropout = o.dropout_while_collecting(recipe.network.name)
+        self._collection_mode()
         self.loss = ClipPPOLoss(
             self.actor,
             self.critic,
@@ -163,13 +190,31 @@ class PPOLearner:
         return self.config.lr * lr_factor(self.iteration, self.iterations, self.config)
 
     def normalized(self, data: TensorDictBase) -> TensorDictBase:
-        """A shallow copy of ``data`` with its (root and next) observations normalised."""
+        """A shallow copy of ``data`` [N, T] with its (root and next) observations normalised.
+
+        A batch the tracking policy collected keeps the observations it acted on
+        (:data:`SEEN_OBS`); a next observation is the following step's, as it was normalised
+        then, unless its episode ended there or it is the batch's last (those are normalised
+        with the statistics as they are now). Other batches are normalised with the statistics
+        as they are now."""
         out = data.clone(False)
-        if self.obs_norm is not None:
+        if self.obs_norm is None:
+            return out
+        nxt = out.get("next").clone(False)
+        now = self.obs_norm(data.get(("next", *OBS)), data.get(("next", *MASK)))
+        if SEEN_OBS in data.keys(True):
+            seen = data.get(SEEN_OBS)
+            out.set(OBS, seen)
+            done = data.get(("next", "done")).reshape(data.shape)
+            follows = torch.zeros_like(done)
+            follows[:, :-1] = ~done[:, :-1]
+            shifted = torch.cat([seen[:, 1:], seen[:, -1:]], 1)
+            cont = follows.reshape(*follows.shape, *([1] * (seen.dim() - follows.dim())))
+            nxt.set(OBS, torch.where(cont, shifted, now))
+        else:
             out.set(OBS, self.obs_norm(data.get(OBS), data.get(MASK)))
-            nxt = out.get("next").clone(False)
-            nxt.set(OBS, self.obs_norm(data.get(("next", *OBS)), data.get(("next", *MASK))))
-            out.set("next", nxt)
+            nxt.set(OBS, now)
+        out.set("next", nxt)
         return out
 
     @torch.no_grad()
@@ -249,11 +294,18 @@ class PPOLearner:
                 if self.stopped_at is not None:
                     break
         finally:
-            self.actor.eval()
-            self.critic.eval()
-        if self.obs_norm is not None:
+            self._collection_mode()
+        collected_here = SEEN_OBS in data.keys(True) and o.collector == "single"
+        if self.obs_norm is not None and not collected_here:
+            # collected by worker processes (their own copies of the statistics), or by another
+            # policy: the statistics merge the batch here
             self.obs_norm.update(data.get(OBS), data.get(MASK))
         self.iteration += 1
+
+    def _collection_mode(self) -> None:
+        """Actor and critic as they collect and value an iteration (see ``collect_dropout``)."""
+        self.actor.train(self.collect_dropout)
+        self.critic.train(self.collect_dropout)
 
     def _buffer(self, n: int, mb: int) -> ReplayBuffer:
         """The iteration's data, sampled in mini-batches without replacement (one per learner,
@@ -407,7 +459,8 @@ class PPO(Algorithm):
 
     # ------------------------------------------------------------------ collection and learning
     def policy(self) -> NormalizedPolicy:
-        return NormalizedPolicy(self.learner.obs_norm, self.learner.actor)
+        """The collecting policy: its observations join the statistics as it acts."""
+        return NormalizedPolicy(self.learner.obs_norm, self.learner.actor, track=True)
 
     def collect_settings(self, env_steps: int) -> CollectSettings:
         o: PPOConfig = self.config
