@@ -240,13 +240,16 @@ def test_context_scaling(robots):
         model = env.sim(i)[0]
         obs = _expected_obs(model, mujoco.MjData(model), r, 12)
         raw = obs[:, np.r_[13:30, 32:41, 43:52]]
-        exp = np.clip(-1 + 2 * (raw - LO) / (HI - LO + 1e-8), -1, 1)
+        # ModuMorph's get_context: the -1 only where the bounds differ
+        exp = np.clip(-1.0 * (LO != HI) + 2 * (raw - LO) / (HI - LO + 1e-8), -1, 1)
         for slot in range(2):  # empty slots (no joint, torso, padding) stay 0
             empty = ~obs[:, 40 + 11 * slot].astype(bool)  # gear 0 <=> no joint
             exp[empty, 17 + 9 * slot : 26 + 9 * slot] = 0
         exp[r.num_limbs :] = 0
         np.testing.assert_allclose(ctx[i], exp, atol=1e-6)
     assert np.abs(ctx).max() <= 1.0
+    real = env.table["limbs", "mask"].numpy()
+    assert (ctx[:, :, [9, 13]][real] == 0).all()  # body_iquat[3], geom_quat[3]: bounds 0, 0
     # the env emits the table's context
     td = env.reset()
     assert torch.equal(td["limbs", "context"], env.table["limbs", "context"][env.local_ids])

@@ -295,3 +295,30 @@ def test_params_command_at_a_recipes_sizes_compares_the_ratios_with_the_papers_s
     params.run_recipe(str(root / "ft.yaml"), methods)
     first = capsys.readouterr().out
     assert "ModuMorph/GCNT (actor + critic): 3.041" in first and "NOT within 10%" in first
+
+
+@pytest.mark.parametrize("name", ["gcnt", "gcnt_hn", "metamorph", "modumorph", "amorpheus", "swat"])
+def test_transformer_layers_start_as_copies_of_one_layer(name):
+    """Every original builds its stack with torch's ``_get_clones`` (deep copies of one layer),
+    so the layers are equal at initialisation (and train apart)."""
+    from gcnt.nn.layers import ContextTransformer, TransformerEncoder
+
+    table = unimal_table() if name in ("gcnt", "gcnt_hn", "metamorph", "modumorph") else None
+    kw = dict(table=table, **UNIMAL) if table is not None else {}
+    if table is None:
+        from nn_helpers import F_OBS, robots, table_of
+
+        kw = dict(table=table_of(robots()), obs_dim=F_OBS, num_actions=1)
+    net = make_network(name, "ppo_actor" if table is not None else "td3_actor", **kw, **small(name))
+    stacks = [m for m in net.modules() if isinstance(m, (TransformerEncoder, ContextTransformer))]
+    assert stacks
+    for stack in stacks:
+        assert len(stack.layers) >= 2
+        first = stack.layers[0].state_dict()
+        for layer in stack.layers[1:]:
+            other = layer.state_dict()
+            assert all(torch.equal(first[k], other[k]) for k in first)
+            assert all(
+                p.data_ptr() != q.data_ptr()
+                for p, q in zip(stack.layers[0].parameters(), layer.parameters(), strict=True)
+            )

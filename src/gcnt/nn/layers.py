@@ -13,6 +13,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import math
 from collections.abc import Sequence
 
@@ -138,6 +140,12 @@ class EncoderLayer(nn.Module):
         return self.norm2(x + self.drop(self.feed_forward(x)))
 
 
+def clones(layer: nn.Module, n: int) -> nn.ModuleList:
+    """``n`` layers that start as copies of ``layer``, as every original builds a Transformer's
+    stack (torch's ``TransformerEncoder``, ``_get_clones``: deep copies of one layer)."""
+    return nn.ModuleList(copy.deepcopy(layer) for _ in range(n))
+
+
 class TransformerEncoder(nn.Module):
     """A stack of :class:`EncoderLayer` with an optional final LayerNorm.
 
@@ -164,9 +172,7 @@ class TransformerEncoder(nn.Module):
             raise ValueError(f"bias_mode must be one of {self.BIAS_MODES}, got {bias_mode!r}")
         self.bias_mode = bias_mode
         self.heads = heads
-        self.layers = nn.ModuleList(
-            EncoderLayer(d_model, heads, ff, dropout, norm_first) for _ in range(layers)
-        )
+        self.layers = clones(EncoderLayer(d_model, heads, ff, dropout, norm_first), layers)
         self.norm = nn.LayerNorm(d_model) if final_norm else None
 
     def forward(self, x: Tensor, mask: Tensor, bias: Tensor | None = None) -> Tensor:
@@ -225,9 +231,7 @@ class ContextTransformer(nn.Module):
 
     def __init__(self, d_model: int, layers: int, heads: int, ff: int, dropout: float = 0.0):
         super().__init__()
-        self.layers = nn.ModuleList(
-            ContextAttentionLayer(d_model, heads, ff, dropout) for _ in range(layers)
-        )
+        self.layers = clones(ContextAttentionLayer(d_model, heads, ff, dropout), layers)
 
     def forward(self, x: Tensor, ctx: Tensor, mask: Tensor) -> Tensor:
         m = key_padding_bias(mask, x.dtype)

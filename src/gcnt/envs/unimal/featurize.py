@@ -26,8 +26,9 @@ flg_local=0)`` returns.
 
 The static context (35 numbers per limb: 13:30 and, per slot, joint position, range, axis and
 gear) is scaled to [−1, 1] with ModuMorph's fixed bounds, ``c = −1 + 2 (x − lo) / (hi − lo +
-1e-8)``, then clipped to [−1, 1] (a robot outside the bounds, or a quaternion component whose
-bounds are both 0, would otherwise give huge values); missing joint slots stay 0.
+1e-8)`` (without the −1 where lo = hi, as ModuMorph: the quaternions' z components, bounds both
+0, are 0 there), then clipped to [−1, 1] (a robot outside the bounds, or such a component away
+from 0, would otherwise give huge values); missing joint slots stay 0.
 
 ``gather`` copies whole slices of a sub-env's MjData (a few array copies, no loop over limbs);
 ``compute`` works on all sub-envs at once.
@@ -69,6 +70,9 @@ CONTEXT_HI = np.array(
     [0.5, 0.45, 2.04, 0.225, 0.225, 0.0, *_Q_HI, *_Q_HI, 4.189, 0.1, 0.226, *_SLOT_HI, *_SLOT_HI]
 )
 assert CONTEXT_LO.shape == CONTEXT_HI.shape == (CONTEXT_DIM,)
+#: the −1 offset applies where the bounds differ (ModuMorph's ``get_context``: ``-1 * (lo != hi)``):
+#: a component whose bounds are equal (the quaternions' z) is 0 at its bound
+_SPANNED = (CONTEXT_LO != CONTEXT_HI).astype(np.float64)
 
 
 def static_features(robot: Robot, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +111,7 @@ def static_features(robot: Robot, model: mujoco.MjModel) -> tuple[np.ndarray, np
 def scale_context(features: np.ndarray, has_slot: np.ndarray) -> np.ndarray:
     """ModuMorph's scaling of the 35 context numbers ``features`` [..., 35] (see the module
     doc); ``has_slot`` [..., 2] marks existing joint slots (the others stay 0)."""
-    c = -1.0 + 2.0 * (features - CONTEXT_LO) / (CONTEXT_HI - CONTEXT_LO + 1e-8)
+    c = -_SPANNED + 2.0 * (features - CONTEXT_LO) / (CONTEXT_HI - CONTEXT_LO + 1e-8)
     np.clip(c, -1.0, 1.0, out=c)
     c[..., 17:26] *= has_slot[..., 0:1]
     c[..., 26:35] *= has_slot[..., 1:2]
