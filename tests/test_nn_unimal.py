@@ -257,6 +257,14 @@ def test_unimal_parameter_counts_match_the_original_models():
     assert rows[mt, "metamorph"] == 3_531_587 - 2_560
     assert rows[ft, "modumorph"] == 5_232_774 - (2 * 6_784 + 258 + 129)
     assert rows[mt, "modumorph"] == 8_608_262 - (2 * 6_784 + 12_482 + 12_417)
+    # Obstacles' decoder has two hidden layers of 64 (MT: one): 2 x (64 x 64 + 64) = 8,320 more
+    # per method, and ModuMorph's unused plain decoder grows by as much
+    obs = next(w for w in worlds if w.lower() == "obstacles")
+    assert rows[obs, "metamorph"] == 3_539_907 - 2_560
+    assert rows[obs, "metamorph_star"] == 3_536_835 - 2_560
+    assert rows[obs, "modumorph"] == 9_689_862 - (2 * 6_784 + 12_482 + 12_417 + 8_320)
+    for method in ("metamorph", "metamorph_star", "gcnt"):  # plain decoders: one Linear(64→64)
+        assert rows[obs, method] - rows[mt, method] == 8_320
     # GCNT adds about 1% to MetaMorph*; ModuMorph is 1.6x (FT) to 2.4x (MT) GCNT
     assert 1.0 < rows[ft, "gcnt"] / rows[ft, "metamorph_star"] < 1.015
     assert 1.5 < rows[ft, "modumorph"] / rows[ft, "gcnt"] < 1.6
@@ -322,3 +330,23 @@ def test_transformer_layers_start_as_copies_of_one_layer(name):
                 p.data_ptr() != q.data_ptr()
                 for p, q in zip(stack.layers[0].parameters(), layer.parameters(), strict=True)
             )
+
+
+def test_each_world_has_the_originals_decoder_depth():
+    """``DECODER_DIMS``: none on FT and Incline (default), [64] on MT (configs/csr.yaml),
+    [64, 64] on Obstacles (configs/obstacle.yaml); training builds its networks with them."""
+    from gcnt.envs.benchmark import get_benchmark
+    from gcnt.nn.layers import HyperLinear
+    from gcnt.nn.stages import HyperHead, LimbHead
+
+    hidden = get_benchmark("unimal").decoder_hidden
+    assert hidden == {"ft": (), "incline": (), "mt": (64,), "obstacles": (64, 64)}
+    table = unimal_table()
+    for name in ("metamorph", "modumorph"):
+        net = make_network(
+            name, "ppo_critic", table=table, hfield_dim=H_SMALL, decoder_hidden=(64, 64),
+            **UNIMAL, **small(name),
+        )  # fmt: skip
+        head = next(m for m in net.modules() if isinstance(m, (LimbHead, HyperHead)))
+        kind = HyperLinear if name == "modumorph" else torch.nn.Linear
+        assert sum(isinstance(m, kind) for m in head.modules()) == 3  # 2 hidden + output

@@ -16,11 +16,13 @@ the numbers reveal it:
   every world = 2 networks × 10 inputs × 128: the paper's numbers match 62 inputs.
 * ModuMorph: actor + critic of its public code, which also builds a plain limb embedding
   Linear(52→128) and a plain decoder it never uses (2 × 6,784 + 258 + 129 = 13,955 on FT/Incline,
-  38,467 with the height-map decoder); ours omits them.
+  38,467 with MT's decoder, 46,787 with Obstacles'); ours omits them.
 * GCNT: its overhead over MetaMorph* here is mostly the WL vector (64 buckets into
   Linear(23 + W → 128)); the paper's difference suggests a much smaller W.
-* MT vs Obstacles: the paper's Obstacles numbers are larger than MT's (MetaMorph +8,320); the
-  original Obstacles world feeds a wider observation. Here both worlds have the same height map.
+* MT vs Obstacles: the decoder has one hidden layer of 64 on MT and two on Obstacles in both
+  originals (``DECODER_DIMS``: ``configs/csr.yaml`` [64], ``configs/obstacle.yaml`` [64, 64]),
+  none on FT and Incline; the second layer is 64 × 64 + 64 = 4,160 per network, the paper's
+  +8,320 of every plain-decoder method from MT to Obstacles.
 * SMPENV (table 7) is about half of one AMORPHEUS actor (202,389 vs 400,404 here) and its method
   deltas look like partial counts (SWAT − AMORPHEUS = 8 = the relational bias Linear(3→2) only).
 * SMP (table 7: 694,410) is twice an actor: the original code (``huangwl18/modular-rl``) registers
@@ -34,8 +36,8 @@ the numbers reveal it:
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 
 import torch
 
@@ -117,6 +119,7 @@ UNIMAL_FALLBACK = dict(
     worlds=("FT", "Incline", "MT", "Obstacles"),
     hfield_worlds=("MT", "Obstacles"),
     hfield_dim=1410,
+    decoder_hidden={"MT": (64,), "Obstacles": (64, 64)},
 )
 #: UNIMAL robot tables: 12 limb slots, 35 context numbers per limb
 UNIMAL_MAX_LIMBS = 12
@@ -131,6 +134,8 @@ class Setup:
     num_actions: int
     #: (world, height-map width) pairs; one ("", 0) for a benchmark without worlds
     worlds: tuple[tuple[str, int], ...]
+    #: the limb decoder's hidden widths per world (a world not listed: the networks' default)
+    decoder_hidden: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
 
 
 def setup_of(benchmark: str) -> Setup:
@@ -144,9 +149,11 @@ def setup_of(benchmark: str) -> Setup:
         log.warning("no 'unimal' benchmark record registered: using F=52, A=2, height map 1410")
         f = UNIMAL_FALLBACK
         worlds = tuple((w, f["hfield_dim"] if w in f["hfield_worlds"] else 0) for w in f["worlds"])
-        return Setup("unimal", "unimal", f["limb_obs_dim"], f["action_slots"], worlds)
+        return Setup(
+            "unimal", "unimal", f["limb_obs_dim"], f["action_slots"], worlds, f["decoder_hidden"]
+        )
     worlds = tuple((w, b.hfield_dim if w in b.hfield_worlds else 0) for w in b.worlds) or (("", 0),)
-    return Setup(b.name, b.preset, b.limb_obs_dim, b.action_slots, worlds)
+    return Setup(b.name, b.preset, b.limb_obs_dim, b.action_slots, worlds, b.decoder_hidden)
 
 
 def counting_table(setup: Setup):
@@ -158,15 +165,19 @@ def counting_table(setup: Setup):
     return table
 
 
-def network_kwargs(setup: Setup, table, hfield: int) -> dict:
-    """What :func:`gcnt.nn.make_network` takes, besides method and role, at ``setup``'s widths."""
-    return dict(
+def network_kwargs(setup: Setup, table, hfield: int, world: str = "") -> dict:
+    """What :func:`gcnt.nn.make_network` takes, besides method and role, at ``setup``'s widths
+    in ``world``."""
+    kw = dict(
         table=table,
         obs_dim=setup.obs_dim,
         num_actions=setup.num_actions,
         preset=setup.preset,
         hfield_dim=hfield,
     )
+    if world in setup.decoder_hidden:
+        kw["decoder_hidden"] = setup.decoder_hidden[world]
+    return kw
 
 
 def count_table(
@@ -190,7 +201,7 @@ def count_table(
         if wanted is not None and world.lower() not in wanted:
             continue
         col = paper.get(_PAPER_WORLD.get(world.lower(), world), {})
-        kw = network_kwargs(setup, table, hfield)
+        kw = network_kwargs(setup, table, hfield, world)
         for name in methods or METHODS.get(setup.benchmark, METHODS["unimal"]):
             over = sizes(name) if sizes is not None else {}
             actor = count_parameters(make_network(name, f"{algo}_actor", **kw, **over))

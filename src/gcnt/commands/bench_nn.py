@@ -105,14 +105,15 @@ def bench(
     worlds = dict(setup.worlds)
     if world is not None and world not in worlds:
         raise ValueError(f"unknown world {world!r} for {benchmark} (known: {', '.join(worlds)})")
-    hfield = worlds[world] if world is not None else setup.worlds[0][1]
+    world = world if world is not None else setup.worlds[0][0]
+    hfield = worlds[world]
     algo = ALGORITHM.get(setup.benchmark, "ppo")
     roles = (f"{algo}_actor", f"{algo}_critic")
     methods = ("gcnt", BASE.get(setup.benchmark, "amorpheus"))
     table = counting_table(setup)
     n, k = table.get(K.MASK).shape
     td = make_batch(n, per_robot, k, setup.obs_dim, setup.num_actions, dev, seed, hfield)
-    kw = network_kwargs(setup, table, hfield)
+    kw = network_kwargs(setup, table, hfield, world)
     nets = {(m, r): make_network(m, r, **kw).to(dev) for m in methods for r in roles}
     times: dict[tuple[str, str], list[float]] = {key: [] for key in nets}
     for i in range(repeats + 2):

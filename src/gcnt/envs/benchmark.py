@@ -14,8 +14,8 @@ Observation and action widths are read from the built env's specs (``limb_obs_di
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from gcnt.suggest import did_you_mean
@@ -47,6 +47,9 @@ class Benchmark:
     #: worlds whose observation carries a height map, and its width
     hfield_worlds: tuple[str, ...] = ()
     hfield_dim: int = 0
+    #: the limb decoder's hidden widths per world (the originals' ``DECODER_DIMS``); a world not
+    #: listed: the networks' default (one hidden layer with a height map, none without)
+    decoder_hidden: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
     #: the robots a run of this benchmark trains on, as a robot spec ("Benchmark:split"); the
     #: default robots of ``gcnt bench-env``
     train_split: str = ""

@@ -22,7 +22,7 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from gcnt import keys as K
 from gcnt.nn.graph_lookup import GraphLookup
 from gcnt.nn.heads import final_keys, probabilistic_actor, role_output
-from gcnt.nn.stages import HFIELD_WIDTH, hfield_stage, input_stage
+from gcnt.nn.stages import DECODER_HIDDEN, HFIELD_WIDTH, hfield_stage, input_stage
 
 
 class Chain(TensorDictSequential):
@@ -50,6 +50,9 @@ class NetIO:
     hfield_width: int = 0
     #: width A of the limb action at the end of ``limbs/input`` (TD3 critics; 0 otherwise)
     action_dim: int = 0
+    #: hidden widths of the limb decoder (the originals' ``DECODER_DIMS``). Pass it to
+    #: ``limb_head_stage(..., hidden=...)``.
+    decoder_hidden: tuple[int, ...] = ()
 
 
 @dataclass
@@ -105,12 +108,22 @@ def assemble(
     return seq
 
 
-def io_for(role: str, obs_dim: int, num_actions: int, hfield_dim: int) -> NetIO:
-    """The widths of ``role``'s backbone (TD3 critics read obs ‖ action)."""
+def io_for(
+    role: str,
+    obs_dim: int,
+    num_actions: int,
+    hfield_dim: int,
+    decoder_hidden: Sequence[int] | None = None,
+) -> NetIO:
+    """The widths of ``role``'s backbone (TD3 critics read obs ‖ action); ``decoder_hidden``
+    None: one hidden layer of :data:`DECODER_HIDDEN` with a height map, none without."""
     in_dim = obs_dim + (num_actions if role == "td3_critic" else 0)
     out_dim = num_actions if role in ("td3_actor", "ppo_actor") else 1
     action_dim = num_actions if role == "td3_critic" else 0
-    return NetIO(in_dim, out_dim, HFIELD_WIDTH if hfield_dim else 0, action_dim)
+    if decoder_hidden is None:
+        decoder_hidden = (DECODER_HIDDEN,) if hfield_dim else ()
+    hidden = tuple(int(w) for w in decoder_hidden)
+    return NetIO(in_dim, out_dim, HFIELD_WIDTH if hfield_dim else 0, action_dim, hidden)
 
 
 def graph_lookup_of(chain: TensorDictModuleBase) -> GraphLookup:

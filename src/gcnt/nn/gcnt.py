@@ -98,7 +98,12 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     enc = encoder_of(cfg, bias_mode)
     stages.append(("transformer", transformer_stage(enc, hidden_key, cfg.use_dist_bias)))
     head = limb_head_stage(
-        cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width, hyper_dim=hyper
+        cfg.d_model,
+        io.out_dim,
+        raw_dim=io.in_dim,
+        hfield_width=io.hfield_width,
+        hyper_dim=hyper,
+        hidden=io.decoder_hidden,
     )
     stages.append(("head", head))
     # the hypernetwork's generated decoder has its own init (HyperLinear)

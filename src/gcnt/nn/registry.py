@@ -167,6 +167,7 @@ def make_network(
     robot_names: Sequence[str] | None = None,
     pad_limbs: int | None = None,
     hfield_dim: int = 0,
+    decoder_hidden: Sequence[int] | None = None,
     ppo_std: str = "fixed",
     ppo_init_std: float = 0.9,
     **overrides: Any,
@@ -184,7 +185,9 @@ def make_network(
         keep_intermediates: keep intermediate keys (embeddings, GCN output, ...) in the output.
         hfield_dim: width of the root key ``hfield`` (UNIMAL MT / Obstacles: 1410), or 0 for no
             height map. It is encoded by an MLP H → 64 → 64 and joined to every limb's features
-            before the decoder, which becomes [features ‖ 64] → 64 → out.
+            before the decoder: [features ‖ 64] → decoder_hidden → out.
+        decoder_hidden: the limb decoder's hidden widths (the world's: UNIMAL MT [64], Obstacles
+            [64, 64], FT and Incline none); None: [64] with a height map, none without.
         ppo_std, ppo_init_std: the PPO actor's Gaussian std: "fixed" (not trained) at
             ``ppo_init_std``, or "learned" (a state-independent log-std per action slot starting
             at ``ppo_init_std``). Ignored by the other roles.
@@ -205,7 +208,7 @@ def make_network(
         robots = list(table)
         robot_names = robot_names or [r.name for r in robots]
         table = robot_table(robots, pad_limbs, num_actions)
-    io = io_for(role, obs_dim, num_actions, hfield_dim)
+    io = io_for(role, obs_dim, num_actions, hfield_dim, decoder_hidden)
     backbone = NETWORKS[name].build(cfg, io, table)
     return assemble(
         backbone,

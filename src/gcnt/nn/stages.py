@@ -27,7 +27,9 @@ from gcnt.nn.layers import (
 )
 
 #: the height map enters every method the same way: MLP H → 64 → 64 (ReLU) of the root key
-#: ``hfield``, joined to each limb's features; the decoder then has one hidden layer of 64
+#: ``hfield``, joined to each limb's features; the decoder's hidden layers are the world's (the
+#: originals' ``DECODER_DIMS``: none on FT and Incline, [64] on MT, [64, 64] on Obstacles), one
+#: of this width where no world says
 HFIELD_WIDTH = 64
 DECODER_HIDDEN = 64
 
@@ -453,11 +455,12 @@ def limb_head_stage(
     raw_dim: int = 0,
     hfield_width: int = 0,
     hyper_dim: int = 0,
+    hidden: Sequence[int] = (),
 ) -> TensorDictModule:
     """The decoder stage ``limbs/features`` (‖ ``limbs/input`` if ``raw_dim``) (‖ ``hfield_embed``
-    if ``hfield_width``) → ``limbs/out``; per-limb generated weights if ``hyper_dim`` (the
-    hypernetwork context width, read from ``limbs/hn_context``)."""
-    hidden = (DECODER_HIDDEN,) if hfield_width else ()
+    if ``hfield_width``) → ``hidden`` (ReLU) → ``limbs/out``; per-limb generated weights if
+    ``hyper_dim`` (the hypernetwork context width, read from ``limbs/hn_context``)."""
+    hidden = tuple(hidden)
     in_keys = (
         [K.FEATURES] + ([K.INPUT] if raw_dim else []) + ([K.HFIELD_EMBED] if hfield_width else [])
     )

@@ -119,6 +119,10 @@ def make_net(recipe: Recipe, env: EnvBase, role: str, **extra: Any) -> TensorDic
     widths = env_widths(env)
     if widths["hfield_dim"]:
         extra.setdefault("hfield_dim", widths["hfield_dim"])
+    bench = benchmark_of(recipe)
+    world = bench.check_world(recipe.env.world)
+    if world in bench.decoder_hidden:
+        extra.setdefault("decoder_hidden", bench.decoder_hidden[world])
     return make_network(
         net.name,
         role,

@@ -119,6 +119,7 @@ MJCF3D_BENCHMARK = Benchmark(
     default_world="ft",
     hfield_worlds=tuple(w for w in WORLDS if UNIMAL_WORLDS[w].height_map),
     hfield_dim=HFIELD_DIM,
+    decoder_hidden={w: UNIMAL_WORLDS[w].decoder_hidden for w in WORLDS},
     train_split="MJCF3D:train",
     description="general 3-D robots from any MJCF file with a free root and hinged limbs "
     "(dm_control's and gymnasium's humanoid and ant, UNIMAL robots read as 3-D) on UNIMAL's "

@@ -124,6 +124,7 @@ UNIMAL_BENCHMARK = Benchmark(
     default_world="ft",
     hfield_worlds=tuple(name for name, world in WORLDS.items() if world.height_map),
     hfield_dim=HFIELD_DIM,
+    decoder_hidden={name: world.decoder_hidden for name, world in WORLDS.items()},
     train_split="Unimal:train",
     description="UNIMAL: 3-D robots from the DERL design space (MetaMorph, Gupta et al. 2022) "
     "in four worlds: flat terrain, incline, mixed terrain, obstacles",

@@ -82,13 +82,23 @@ class World:
     side_limit: bool = False
     #: the model is edited every episode (terrain / boxes)
     edits_model: bool = False
+    #: the limb decoder's hidden widths in this world (MetaMorph's and ModuMorph's
+    #: ``DECODER_DIMS``: configs/csr.yaml [64], configs/obstacle.yaml [64, 64], default none)
+    decoder_hidden: tuple[int, ...] = ()
 
 
 WORLDS: dict[str, World] = {
     "ft": World("ft", 0.5),
     "incline": World("incline", 0.2),
-    "mt": World("mt", 0.3, height_map=True, side_limit=True, edits_model=True),
-    "obstacles": World("obstacles", 0.5, height_map=True, side_limit=True, edits_model=True),
+    "mt": World("mt", 0.3, height_map=True, side_limit=True, edits_model=True, decoder_hidden=(64,)),
+    "obstacles": World(
+        "obstacles",
+        0.5,
+        height_map=True,
+        side_limit=True,
+        edits_model=True,
+        decoder_hidden=(64, 64),
+    ),
 }
 
 

@@ -31,7 +31,9 @@ from gcnt.nn.stages import (
 
 def metamorph_backbone(cfg: MetaMorphConfig, io: NetIO, table: TensorDictBase) -> Backbone:
     encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
-    head = limb_head_stage(cfg.d_model, io.out_dim, hfield_width=io.hfield_width)
+    head = limb_head_stage(
+        cfg.d_model, io.out_dim, hfield_width=io.hfield_width, hidden=io.decoder_hidden
+    )
     init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
     stages = [("encoder", encoder)]
     token_key = K.EMBED

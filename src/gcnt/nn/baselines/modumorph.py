@@ -51,6 +51,8 @@ def modumorph_backbone(cfg: ModuMorphConfig, io: NetIO, table: TensorDictBase) -
         stages.append(("transformer", context_transformer_stage(enc)))
     else:
         stages.append(("transformer", transformer_stage(encoder_of(cfg), K.EMBED)))
-    head = limb_head_stage(cfg.d_model, io.out_dim, hfield_width=io.hfield_width, hyper_dim=hn)
+    head = limb_head_stage(
+        cfg.d_model, io.out_dim, hfield_width=io.hfield_width, hyper_dim=hn, hidden=io.decoder_hidden
+    )
     stages.append(("head", head))
     return Backbone(stages, static_keys=(K.CONTEXT,), name="ModuMorph")

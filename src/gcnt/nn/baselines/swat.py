@@ -51,7 +51,13 @@ class TraversalEmbedding(nn.Module):
 
 def swat_backbone(cfg: SWATConfig, io: NetIO, table: TensorDictBase) -> Backbone:
     encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
-    head = limb_head_stage(cfg.d_model, io.out_dim, raw_dim=io.in_dim, hfield_width=io.hfield_width)
+    head = limb_head_stage(
+        cfg.d_model,
+        io.out_dim,
+        raw_dim=io.in_dim,
+        hfield_width=io.hfield_width,
+        hidden=io.decoder_hidden,
+    )
     init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
     return Backbone(
         [
