@@ -214,12 +214,11 @@ def test_the_bar_ends_after_the_last_update_and_a_summary_follows(
 # ------------------------------------------------------------------ every method, both quick starts
 
 
-#: methods a quick start refuses (one line): SMP and the MLPs have no d_model (and the MLPs train
-#: one robot a run); ModuMorph and GCNT+HN read the static limb context UNIMAL robots carry
-#: sr/mlp: one MLP per robot (the quick starts train several); modumorph/gcnt_hn: their
-#: hypernetworks read the UNIMAL limb context, which SMPENV robots do not have
+#: methods a quick start refuses (one line): sr/mlp: one MLP per robot (the quick starts train
+#: several); modumorph/gcnt_hn (their hypernetworks) and gcnt_gcn_context (its GCN) read the
+#: static limb context UNIMAL robots carry, which SMPENV robots do not have
 REFUSED = {
-    "smpenv": {"sr", "mlp", "modumorph", "gcnt_hn"},
+    "smpenv": {"sr", "mlp", "modumorph", "gcnt_hn", "gcnt_gcn_context"},
     "unimal": {"sr", "mlp"},
 }
 

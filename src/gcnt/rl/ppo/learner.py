@@ -468,8 +468,12 @@ class PPO(Algorithm):
 
     # ------------------------------------------------------------------ collection and learning
     def policy(self) -> NormalizedPolicy:
-        """The collecting policy: its observations join the statistics as it acts."""
-        return NormalizedPolicy(self.learner.obs_norm, self.learner.actor, track=True)
+        """The collecting policy: with the single collector its observations join the statistics
+        as it acts; the ``multi`` collector's workers normalise with the statistics of the
+        iteration's start (a worker's own updates would depend on how the envs are split over
+        workers), which then merge the iteration's batch."""
+        single = self.config.collector == "single"
+        return NormalizedPolicy(self.learner.obs_norm, self.learner.actor, track=single)
 
     def collect_settings(self, env_steps: int) -> CollectSettings:
         o: PPOConfig = self.config
