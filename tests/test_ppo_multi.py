@@ -20,23 +20,35 @@ from gcnt.rl.run_dir import RunDir
 from gcnt.rl.stop import EXIT_STOPPED
 
 
-@pytest.mark.slow
-def test_sigterm_stops_a_multi_process_collector_cleanly_and_the_run_resumes(tmp_path: Path):
-    d = tiny_recipe(tmp_path / "unused", "unimal", collector="multi", workers=2).to_dict()
+def _endless_run(tmp_path: Path, benchmark: str = "smpenv") -> tuple[subprocess.Popen, Path]:
+    """``gcnt train`` of a tiny multi-collector PPO recipe that runs until stopped, started as a
+    process once it has logged a row; its run directory."""
+    d = tiny_recipe(tmp_path / "unused", benchmark, collector="multi", workers=2).to_dict()
     d.pop("run_dir", None)
     d["collector"]["total_frames"] = 10_000_000  # runs until stopped
     d["checkpoint_interval"] = 10_000_000  # the only checkpoint is the stop's own
-    recipe = tmp_path / "multi.yaml"
-    recipe.write_text(yaml.safe_dump(d))
+    path = tmp_path / "multi.yaml"
+    path.write_text(yaml.safe_dump(d))
     run = tmp_path / "run"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gcnt.cli", "train", str(recipe), f"run_dir={run}"],
+        [sys.executable, "-m", "gcnt.cli", "train", str(path), f"run_dir={run}"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
     try:
         wait_for_metrics([run / "metrics.jsonl"], proc)
+    except BaseException:
+        proc.kill()
+        raise
+    return proc, run
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_multi_process_collector_cleanly_and_the_run_resumes(tmp_path: Path):
+    proc, run = _endless_run(tmp_path, benchmark="unimal")
+    d = yaml.safe_load((tmp_path / "multi.yaml").read_text())
+    try:
         proc.send_signal(signal.SIGTERM)
         _, stderr = proc.communicate(timeout=300)
     finally:
@@ -97,20 +109,8 @@ def test_a_killed_runs_probabilities_file_is_removed_by_the_next(tmp_path: Path)
 def test_a_killed_worker_ends_the_run_in_one_line(tmp_path: Path):
     import os
 
-    d = tiny_recipe(tmp_path / "unused", collector="multi", workers=2).to_dict()
-    d.pop("run_dir", None)
-    d["collector"]["total_frames"] = 10_000_000  # runs until a worker dies
-    recipe = tmp_path / "multi.yaml"
-    recipe.write_text(yaml.safe_dump(d))
-    run = tmp_path / "run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gcnt.cli", "train", str(recipe), f"run_dir={run}"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc, run = _endless_run(tmp_path)
     try:
-        wait_for_metrics([run / "metrics.jsonl"], proc)
         children = subprocess.run(
             ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
         ).stdout.split()

@@ -17,6 +17,7 @@ from torch import Tensor, nn
 
 from gcnt import keys as K
 from gcnt.morphology import DIST_PAD
+from gcnt.nn.init import init_like_original
 from gcnt.nn.layers import (
     ContextTransformer,
     HyperLinear,
@@ -483,3 +484,20 @@ def limb_head_stage(
             HyperHead(hyper_dim, feat_dim, out_dim, **kw), [K.HN_CONTEXT, *in_keys], [K.OUT]
         )
     return TensorDictModule(LimbHead(feat_dim, out_dim, **kw), in_keys, [K.OUT])
+
+
+def token_ends(cfg, io) -> tuple[TensorDictModule, TensorDictModule]:
+    """The two ends of a Transformer over limb tokens (AMORPHEUS, SWAT): the limb encoder
+    (``limbs/input`` → ``limbs/embed``, scaled by ``cfg.input_scale``) and the decoder over
+    [features ‖ raw input (‖ height-map embedding)] with the world's hidden layers, both
+    initialised as ``cfg.init`` names."""
+    encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
+    head = limb_head_stage(
+        cfg.d_model,
+        io.out_dim,
+        raw_dim=io.in_dim,
+        hfield_width=io.hfield_width,
+        hidden=io.decoder_hidden,
+    )
+    init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
+    return encoder, head

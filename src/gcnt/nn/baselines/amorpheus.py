@@ -12,20 +12,11 @@ from tensordict import TensorDictBase
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import TransformerConfig
-from gcnt.nn.init import init_like_original
-from gcnt.nn.stages import encoder_of, limb_encoder_stage, limb_head_stage, transformer_stage
+from gcnt.nn.stages import encoder_of, token_ends, transformer_stage
 
 
 def amorpheus_backbone(cfg: TransformerConfig, io: NetIO, table: TensorDictBase) -> Backbone:
-    encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
-    head = limb_head_stage(
-        cfg.d_model,
-        io.out_dim,
-        raw_dim=io.in_dim,
-        hfield_width=io.hfield_width,
-        hidden=io.decoder_hidden,
-    )
-    init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
+    encoder, head = token_ends(cfg, io)
     return Backbone(
         [
             ("encoder", encoder),

@@ -19,12 +19,10 @@ from torch import Tensor, nn
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SWATConfig
-from gcnt.nn.init import init_like_original
 from gcnt.nn.stages import (
     encoder_of,
-    limb_encoder_stage,
-    limb_head_stage,
     relational_bias_stage,
+    token_ends,
     transformer_stage,
 )
 
@@ -50,15 +48,7 @@ class TraversalEmbedding(nn.Module):
 
 
 def swat_backbone(cfg: SWATConfig, io: NetIO, table: TensorDictBase) -> Backbone:
-    encoder = limb_encoder_stage(io.in_dim, cfg.d_model, (), cfg.input_scale)
-    head = limb_head_stage(
-        cfg.d_model,
-        io.out_dim,
-        raw_dim=io.in_dim,
-        hfield_width=io.hfield_width,
-        hidden=io.decoder_hidden,
-    )
-    init_like_original(cfg.init, embeddings=[encoder.module], decoder=head.module)
+    encoder, head = token_ends(cfg, io)
     return Backbone(
         [
             ("encoder", encoder),
