@@ -82,6 +82,33 @@ def _dead_worker(collector: Any, run: RunDir) -> WorkerDiedError | None:
     return None
 
 
+@contextlib.contextmanager
+def worker_watch(collector: Any, run: RunDir, every: float = 1.0):
+    """While the block runs, check ``collector``'s worker processes every ``every`` seconds (a
+    SIGALRM timer, which also interrupts a wait inside the collector) and raise the
+    :class:`WorkerDiedError` of one that ended there, wherever the main thread waits for it
+    (its batch, or its acknowledgement of new weights). Only in the main thread."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def check(signum, frame):
+        dead = _dead_worker(collector, run)
+        if dead is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            raise dead
+
+    previous = signal.signal(signal.SIGALRM, check)
+    signal.setitimer(signal.ITIMER_REAL, every, every)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def _end_workers(collector: Any) -> None:
     """End the worker processes still alive beside a dead one (SIGTERM, then SIGKILL)."""
     procs = [p for p in getattr(collector, "procs", None) or [] if not getattr(p, "_closed", False)]
@@ -267,24 +294,26 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
         # log lines go above the progress bar instead of through it
         with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
             try:
-                for data in collector:
-                    env_steps += data.numel()
-                    stats.add_episodes(data)
-                    row = after_update(
-                        recipe, run, algo, logger, stats, cadence,
-                        algo.process(data, env_steps), env_steps,
-                    )  # fmt: skip
-                    bar.update(data.numel())  # 100% once the last batch's update is done
-                    if stop.requested():
-                        stop_here(recipe, [run], [algo], [logger], [cadence], [env_steps])
-                    if multi:  # a dead worker would never acknowledge the new weights
-                        if (dead := _dead_worker(collector, run)) is not None:
-                            raise dead
-                        collector.update_policy_weights_()
-                    if row is not None:
-                        bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
-                    if env_steps >= total:
-                        break
+                # a worker that dies while the loop waits for it ends the wait (worker_watch)
+                with worker_watch(collector, run) if multi else contextlib.nullcontext():
+                    for data in collector:
+                        env_steps += data.numel()
+                        stats.add_episodes(data)
+                        row = after_update(
+                            recipe, run, algo, logger, stats, cadence,
+                            algo.process(data, env_steps), env_steps,
+                        )  # fmt: skip
+                        bar.update(data.numel())  # 100% once the last batch's update is done
+                        if stop.requested():
+                            stop_here(recipe, [run], [algo], [logger], [cadence], [env_steps])
+                        if multi:  # a dead worker would never acknowledge the new weights
+                            if (dead := _dead_worker(collector, run)) is not None:
+                                raise dead
+                            collector.update_policy_weights_()
+                        if row is not None:
+                            bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
+                        if env_steps >= total:
+                            break
             except Exception as e:  # a worker that died: one line, not the collector's traceback
                 dead = e if isinstance(e, WorkerDiedError) else None
                 dead = dead or (_dead_worker(collector, run) if multi else None)
