@@ -5,7 +5,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from gcnt.commands.bench_train import arithmetic, count_flops, matmul_peak_gflops
+from gcnt.bench.common import arithmetic, count_flops, matmul_peak_gflops
 
 
 def test_count_flops_of_a_linear_layer_and_its_backward():
@@ -34,7 +34,7 @@ def test_arithmetic_share_of_the_peak():
 
 
 def test_count_launches_counts_the_top_level_operators_on_a_cpu():
-    from gcnt.commands.bench_train import count_launches, launch_line
+    from gcnt.bench.common import count_launches, launch_line
 
     x = torch.randn(8, 8)
     # three operators called by the caller; mm's own internals are not counted again

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 
 from gcnt.cli import main as gcnt
-from gcnt.commands.bench_train import end_to_end_rate
+from gcnt.bench.td3 import end_to_end_rate
 from gcnt.recipes import load_recipe
 
 
@@ -27,6 +27,8 @@ def test_the_report_is_not_mixed_with_training_log_lines(recipe_file, caplog, ca
     assert not [r for r in caplog.records if r.levelno < logging.WARNING]
     out = capsys.readouterr().out
     assert "ratio to the bare update" in out and "share of the time spent in updates" in out
+    # operators of each step, new and previous, and the previous update's time in one run
+    assert out.count("operators: critic step") == 2 and out.count("new ÷ previous") == 2
     # the level is restored afterwards: other commands in the process log as before
     assert logging.getLogger("gcnt").level <= logging.INFO
 
@@ -39,7 +41,7 @@ def test_the_profiler_lines_stay_out_of_the_report():
 
     code = (
         "import os, torch\n"
-        "from gcnt.commands.bench_train import count_launches\n"
+        "from gcnt.bench.common import count_launches\n"
         "def fn():\n"
         "    os.write(2, b'a line of the update\\n')\n"
         "    return torch.ones(3) + 1\n"
@@ -49,3 +51,15 @@ def test_the_profiler_lines_stay_out_of_the_report():
     assert done.returncode == 0, done.stderr
     assert int(done.stdout) >= 1
     assert done.stderr == "a line of the update\n"
+
+
+def test_the_ensemble_update_dispatches_fewer_operators_than_two_critics(recipe_file):
+    """The critic step of the ensemble dispatches well under the two critics' operators."""
+    from gcnt.bench.td3 import bare_update_rate
+
+    recipe = load_recipe(recipe_file, ["td3.schedule=mixed"])
+    out = bare_update_rate(recipe, n_updates=2, rounds=1)
+    new, old = out["new"]["operators"], out["previous"]["operators"]
+    assert new["critic_step"] < 0.75 * old["critic_step"]
+    assert new["per_update"] < old["per_update"]
+    assert out["ratio_to_previous"] > 0

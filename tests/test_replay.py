@@ -11,7 +11,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from gcnt.commands.bench_train import ensemble_store, make_ensemble
+from gcnt.bench.td3 import ensemble_store, make_ensemble
 from gcnt.recipes import load_recipe
 from gcnt.rl.factories import make_env, train_robots
 from gcnt.rl.loop import train

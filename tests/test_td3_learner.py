@@ -1,10 +1,10 @@
 """Tests for ``gcnt.rl.td3.learner``, the fast TD3 learner, checked in float64 against torchrl's
 TD3Loss (tests/reference_td3.py, the reference for ``gcnt.rl.td3.loss``): the critic and actor
 losses and their gradients, for every method, on mixed batches and on the paper schedule's
-one-robot batches, and the soft target update moving the targets by tau.
+one-robot batches, the soft target update moving the targets by tau, and the twin critics as one
+ensemble making the updates of two separate critics.
 """
 
-import copy
 from pathlib import Path
 
 import pytest
@@ -14,16 +14,16 @@ from reference_td3 import actor_loss, critic_loss, make_td3_loss
 from gcnt.recipes import load_recipe
 from gcnt.rl.factories import make_env, train_robots
 from gcnt.rl.td3 import replay as rb
-from gcnt.rl.td3.learner import TD3Learner
+from gcnt.rl.td3.learner import TD3Learner, stack_pair_adam
 
 ROOT = Path(__file__).parents[1]
 QUICK = ROOT / "recipes/quickstart.yaml"
 NET = "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}"
 
 
-def _double_learner(recipe_overrides=(), net=NET):
+def _double_learner(recipe_overrides=(), net=NET, rule="robot_mean"):
     # torchrl's TD3Loss with the per-robot TD(0) estimator is the robot_mean rule
-    recipe = load_recipe(QUICK, [net, "td3.target=robot_mean", *recipe_overrides])
+    recipe = load_recipe(QUICK, [net, f"td3.target={rule}", *recipe_overrides])
     robots = train_robots(recipe)
     env = make_env(recipe, robots)
     data = env.rollout(10, break_when_any_done=False)
@@ -46,7 +46,7 @@ def _reference(recipe, learner):
     c = recipe.td3
     loss = make_td3_loss(
         learner.actor,
-        list(learner.critics),
+        [learner.critics.member(i) for i in range(2)],
         gamma=c.gamma,
         policy_noise=c.policy_noise,
         noise_clip=c.noise_clip,
@@ -58,9 +58,9 @@ def _reference(recipe, learner):
         for name, p in learner.target_actor.named_parameters():
             target_actor[name].copy_(p)
         target_q = loss.target_qvalue_network_params.flatten_keys(".")
-        for i, critic in enumerate(learner.target_critics):
-            for name, p in critic.named_parameters():
-                target_q[name][i].copy_(p)
+        for name, p in learner.target_critics.net.named_parameters():
+            for i in range(2):
+                target_q[name][i].copy_(p[i])
     return loss
 
 
@@ -79,15 +79,13 @@ def test_fast_critic_and_actor_losses_equal_torchrl_td3loss_float64():
     q_fast = learner.critic_loss(batch)
     assert q_fast.dtype == torch.float64
     torch.testing.assert_close(q_fast, q_ref, rtol=1e-12, atol=1e-12)
-    # gradients of both critics, by parameter name
+    # gradients of both critics (the ensemble's stacked parameters), by parameter name
     ref_params = ref.qvalue_network_params.flatten_keys(".")
     g_ref = _grads([(k, v) for k, v in ref_params.items() if "table_" not in k], q_ref)
-    for i, critic in enumerate(learner.critics):
-        g_fast = _grads(
-            list(critic.named_parameters()), q_fast if i == 0 else _again(learner, batch)
-        )
-        for name, g in g_fast.items():
-            torch.testing.assert_close(g, g_ref[name][i], rtol=1e-9, atol=1e-12, msg=name)
+    g_fast = _grads(list(learner.critics.net.named_parameters()), q_fast)
+    assert g_fast.keys() == g_ref.keys()
+    for name, g in g_fast.items():
+        torch.testing.assert_close(g, g_ref[name], rtol=1e-9, atol=1e-12, msg=name)
     a_ref = actor_loss(ref, lookup(batch.clone()))
     a_fast = learner.actor_loss(batch)
     torch.testing.assert_close(a_fast, a_ref, rtol=1e-12, atol=1e-12)
@@ -101,11 +99,6 @@ def test_fast_critic_and_actor_losses_equal_torchrl_td3loss_float64():
     )
     for name, g in _grads(list(learner.actor.named_parameters()), a_fast).items():
         torch.testing.assert_close(g, ga_ref[name], rtol=1e-9, atol=1e-12, msg=name)
-
-
-def _again(learner, batch):
-    torch.manual_seed(0)
-    return learner.critic_loss(batch)
 
 
 @pytest.mark.parametrize("method", ["amorpheus", "swat", "smp", "metamorph", "mlp"])
@@ -152,38 +145,89 @@ def test_soft_target_update_moves_targets_by_tau():
         torch.testing.assert_close(t, (1 - tau) * b + tau * p)
 
 
-def test_twin_critics_on_two_threads_make_the_same_updates():
-    """compile.twin_threads: the critics and target critics on two threads give the updates of
-    the critics in turn (float64, the learner's own steps, with gradient clipping), and the
-    switch is refused where it cannot hold."""
-    from gcnt.rl.td3.twin import AtOnce, InTurn
-
-    _, learner, batch = _double_learner(["td3.max_grad_norm=0.5"])
-    twin = copy.deepcopy(learner)
-    learner.twin, twin.twin = InTurn(), AtOnce()
-    for _ in range(4):  # two actor steps (policy_delay 2)
-        torch.manual_seed(3)
-        losses = learner.update(batch)
-        torch.manual_seed(3)
-        assert twin.update(batch) == pytest.approx(losses, rel=1e-12)
-    for name in ("actor", "critics", "target_actor", "target_critics"):
-        mine = dict(getattr(twin, name).named_parameters())
-        for key, p in getattr(learner, name).named_parameters():
-            torch.testing.assert_close(mine[key], p, rtol=1e-12, atol=1e-14, msg=f"{name}.{key}")
-
-    with pytest.raises(ValueError, match="dropout"):
-        _double_learner(["compile.twin_threads=true", "network.name=metamorph"])
-    with pytest.raises(ValueError, match="twin_threads"):
-        load_recipe(QUICK, ["compile.twin_threads=true", "compile.compile=true"])
-    with pytest.raises(ValueError, match="torch_threads"):
-        load_recipe(QUICK, ["compile.twin_threads=true", "compile.torch_threads=2"])
-    with pytest.raises(ValueError, match="torch_threads must be >= 1"):
-        load_recipe(QUICK, ["compile.torch_threads=0"])
+def _learner_pair(method, overrides=()):
+    """A float64 ensemble learner and a two-critic learner (``pair``) with the same weights, and
+    a mixed and a one-robot batch."""
+    net = "network.kwargs={}" if method in ("smp", "mlp") else NET
+    one = ["env.robots=[hopper_5]"] if method == "mlp" else []
+    recipe = load_recipe(QUICK, [net, f"network.name={method}", *one, *overrides])
+    robots = train_robots(recipe)
+    env = make_env(recipe, robots)
+    data = env.rollout(10, break_when_any_done=False)
+    learners = []
+    for pair in (False, True):
+        torch.manual_seed(0)  # the same initial weights: the ensemble stacks what it is given
+        learner = TD3Learner(recipe, env, pair=pair)
+        for m in (learner.actor, learner.critics, learner.target_actor, learner.target_critics):
+            m.double()
+        learners.append(learner)
+    env.close()
+    replay = rb.RobotReplay(len(robots), capacity=30, batch_size=6)
+    replay.extend(data)
+    batches = [replay.sample_mixed(), replay.sample_robot(len(robots) - 1)]
+    return learners, [
+        b.apply(lambda t: t.double() if t.is_floating_point() else t) for b in batches
+    ]
 
 
-def test_torch_threads_apply_to_the_run_and_more_than_one_leaves_the_critics_in_turn():
+def _critic_weights(learner):
+    """name -> [2, ...] of either layout."""
+    if learner.pair:
+        per = [dict(c.named_parameters()) for c in learner.critics]
+        return {f"net.{k}": torch.stack([p[k] for p in per]) for k in per[0]}
+    return dict(learner.critics.named_parameters())
+
+
+@pytest.mark.parametrize(
+    "method",
+    ["gcnt", "gcnt_no_gcn", "gcnt_no_wl", "gcnt_no_dist", "amorpheus", "swat", "smp", "mlp"],
+)
+def test_ensemble_updates_equal_two_separate_critics_float64(method):
+    """Both schedules' batches (mixed and one robot), gradient clipping on, two actor steps: the
+    ensemble's losses, weights and Adam moments are the two separate critics'."""
+    (ens, pair), batches = _learner_pair(method, ["td3.max_grad_norm=0.5", "td3.target=limb"])
+    for step in range(4):
+        for batch in batches:
+            torch.manual_seed(step)
+            losses = ens.update(batch)
+            torch.manual_seed(step)
+            assert losses == pytest.approx(pair.update(batch), rel=1e-10, abs=1e-12)
+    for name in ("actor", "target_actor"):
+        mine = dict(getattr(pair, name).named_parameters())
+        for key, p in getattr(ens, name).named_parameters():
+            torch.testing.assert_close(p, mine[key], rtol=1e-9, atol=1e-12, msg=f"{name}.{key}")
+    for online in (True, False):
+        a = _critic_weights(ens) if online else dict(ens.target_critics.named_parameters())
+        if online:
+            b = _critic_weights(pair)
+        else:
+            per = [dict(c.named_parameters()) for c in pair.target_critics]
+            b = {f"net.{k}": torch.stack([p[k] for p in per]) for k in per[0]}
+        assert a.keys() == b.keys()
+        for key in a:
+            torch.testing.assert_close(a[key], b[key], rtol=1e-9, atol=1e-12, msg=key)
+    # the ensemble's Adam moments are the two critics' stacked
+    converted = stack_pair_adam(pair.critic_opt.state_dict(), len(ens.critic_params))
+    mine = ens.critic_opt.state_dict()["state"]
+    for j, state in converted["state"].items():
+        for k in ("exp_avg", "exp_avg_sq"):
+            torch.testing.assert_close(mine[j][k], state[k], rtol=1e-9, atol=1e-15)
+
+
+def test_robot_sum_rule_and_the_ensemble_losses_are_the_pairs():
+    (ens, pair), batches = _learner_pair("gcnt", ["td3.target=robot_sum"])
+    for batch in batches:
+        torch.manual_seed(4)
+        q_ens = ens.critic_loss(batch)
+        torch.manual_seed(4)
+        torch.testing.assert_close(q_ens, pair.critic_loss(batch), rtol=1e-12, atol=1e-12)
+        torch.testing.assert_close(
+            ens.actor_loss(batch), pair.actor_loss(batch), rtol=1e-12, atol=1e-12
+        )
+
+
+def test_torch_threads_apply_to_the_run():
     from gcnt.rl.loop import prepare
-    from gcnt.rl.td3.twin import InTurn, make_pair_runner
 
     before = torch.get_num_threads()
     try:
@@ -192,24 +236,5 @@ def test_torch_threads_apply_to_the_run_and_more_than_one_leaves_the_critics_in_
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
-    cpu = torch.device("cpu")
-    assert isinstance(make_pair_runner(None, cpu, False, False, torch_threads=2), InTurn)
-    assert isinstance(make_pair_runner(None, cpu, True, False), InTurn)  # compiled
-    assert isinstance(make_pair_runner(None, torch.device("cuda"), False, False), InTurn)
-
-
-def test_twin_threads_work_in_a_forked_child():
-    """A process forked after the helper thread started has no helper: it starts its own."""
-    import multiprocessing
-
-    from gcnt.rl.td3.twin import AtOnce
-
-    runner = AtOnce()
-    assert runner.map(abs, (-1, -2)) == [1, 2]
-    ctx = multiprocessing.get_context("fork")
-    out = ctx.Queue()
-    child = ctx.Process(target=lambda: out.put(runner.map(abs, (-3, -4))))
-    child.start()
-    assert out.get(timeout=60) == [3, 4]
-    child.join(timeout=60)
-    assert child.exitcode == 0
+    with pytest.raises(ValueError, match="torch_threads must be >= 1"):
+        load_recipe(QUICK, ["compile.torch_threads=0"])

@@ -21,7 +21,7 @@ NET = "network.kwargs={d_model: 16, layers: 1, ff: 16, heads: 2}"
 def test_robot_only_stages_run_once_per_robot():
     recipe = load_recipe(QUICK, [NET])
     env = make_env(recipe, train_robots(recipe))
-    chain = TensorChain(TD3Learner(recipe, env).critics[0])
+    chain = TensorChain(TD3Learner(recipe, env).critics.net)
     per_robot = {type(st.module.module).__name__ for st in chain.stages if st.per_robot}
     assert per_robot == {"LimbGCN", "DistanceBias"}
     env.close()

@@ -110,7 +110,7 @@ class EncoderLayer(nn.Module):
         self.ff2 = nn.Linear(ff, d_model)
         self.norm1 = nn.LayerNorm(d_model)
         self.norm2 = nn.LayerNorm(d_model)
-        self.drop = nn.Dropout(dropout)
+        self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()  # no op at p=0
         self.reset_attention_parameters()
 
     def reset_attention_parameters(self) -> None:

@@ -123,19 +123,49 @@ class LimbGCN(nn.Module):
         self.num_types, self.context_dim = num_types, context_dim
         self.embed = nn.Linear(context_dim or num_types, width, bias=False)
         self.layers = nn.ModuleList(GCNLayer(width) for _ in range(layers))
+        self._graph_cache = None
+
+    def graph(self, types: Tensor, adj: Tensor, mask: Tensor, what: str, dtype: torch.dtype):
+        """The one-hot limb types (``what="types"``; ``types`` is the GCN's input, the limb
+        context with ``context_dim``) or Â (``"a_hat"``) in ``dtype``: constants of
+        the robot table, computed at the first call with these tensors and kept while they are
+        unchanged (each update calls the GCN of every network on the same table)."""
+        compiling = torch.compiler.is_compiling()
+        cache = self._graph_cache
+        if (
+            compiling
+            or cache is None
+            or any(a is not b for a, b in zip(cache[0], (types, adj, mask), strict=True))
+            or cache[1] != (types._version, adj._version, mask._version)
+        ):
+            if (
+                not self.context_dim
+                and types.device.type == "cpu"
+                and types.numel()
+                and int(types.max()) >= self.num_types
+            ):
+                raise ValueError(
+                    f"limb type id {int(types.max())} >= num_limb_types {self.num_types}"
+                )
+            cache = ((types, adj, mask), (types._version, adj._version, mask._version), {})
+            if not compiling:
+                self._graph_cache = cache
+        out = cache[2].get((what, dtype))
+        if out is None:
+            if what == "types":
+                out = F.one_hot(types.clamp_min(0), self.num_types).to(dtype)
+            else:
+                out = normalized_adjacency(adj, mask, dtype)
+            cache[2][(what, dtype)] = out
+        return out
 
     def forward(self, limbs: Tensor, adj: Tensor, mask: Tensor) -> Tensor:
         dtype = self.embed.weight.dtype
         if self.context_dim:
             h = self.embed(limbs.to(dtype))
         else:
-            types = limbs
-            if types.device.type == "cpu" and types.numel() and int(types.max()) >= self.num_types:
-                raise ValueError(
-                    f"limb type id {int(types.max())} >= num_limb_types {self.num_types}"
-                )
-            h = self.embed(F.one_hot(types.clamp_min(0), self.num_types).to(dtype))
-        a_hat = normalized_adjacency(adj, mask, h.dtype)
+            h = self.embed(self.graph(limbs, adj, mask, "types", dtype))
+        a_hat = self.graph(limbs, adj, mask, "a_hat", h.dtype)
         for layer in self.layers:
             h = layer(h, a_hat)
         return torch.where(mask.unsqueeze(-1), h, h.new_zeros(()))
@@ -306,7 +336,7 @@ class PositionEmbedding(nn.Module):
         super().__init__()
         self.max_limbs = max_limbs
         self.pe = nn.Parameter(torch.randn(max_limbs, d_model))
-        self.drop = nn.Dropout(dropout)
+        self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()  # no op at p=0
 
     def forward(self, embed: Tensor) -> Tensor:
         k = embed.shape[-2]

@@ -95,10 +95,11 @@ def collector_kwargs(config: CompileConfig) -> dict[str, Any]:
 
 
 def optimizer_kwargs(config: CompileConfig, device: str | torch.device) -> dict[str, Any]:
-    """Adam/AdamW options: ``capturable`` for a graphed step; CPU's fused kernel otherwise
-    (one call for all parameters instead of a Python loop over them)."""
+    """Adam/AdamW options: ``capturable`` for a graphed step; the fused kernel of a CPU or a
+    CUDA device otherwise (one call for all parameters instead of one per parameter or
+    group); torch's choice (foreach) under ``compile.compile``."""
     if config.cudagraphs:
         return {"capturable": True}
-    if torch.device(device).type == "cpu" and not config.compile:
+    if torch.device(device).type in ("cpu", "cuda") and not config.compile:
         return {"fused": True}
     return {}

@@ -13,14 +13,16 @@ collected batch to :meth:`TD3.process`):
    (:func:`~gcnt.rl.td3.loss.smoothed_target_action`), the target critics' per-limb Q' and the
    TD target (:func:`~gcnt.rl.td3.loss.td_target`; per limb by default, as the AMORPHEUS/SWAT
    code: ``td3.target``);
-4. **critic step** (:meth:`TD3Learner._critic_step`): each critic's error
-   (:func:`~gcnt.rl.td3.loss.critic_error`) and its backward, then :func:`apply_gradients` (clip →
-   Adam step → zero_grad); on a CPU the two critics, and before them the two target critics, run
-   at once on two threads (:mod:`~gcnt.rl.td3.twin`, ``compile.twin_threads``);
+4. **critic step** (:meth:`TD3Learner._critic_step`): both critics' errors
+   (:func:`~gcnt.rl.td3.loss.critic_error`) from one call of the critic ensemble
+   (:class:`~gcnt.rl.td3.ensemble.Ensemble`: the two critics' parameters stacked, evaluated
+   under one vmap; the two target critics likewise), one backward, then :func:`apply_gradients`
+   (clip → Adam step → zero_grad; one fused Adam over the stacked parameters);
 5. **delayed actor and target step** (:func:`delayed_update`, every ``policy_delay`` critic
    steps, :meth:`TD3Learner._actor_step`): -Q1 of the actor's action
    (:func:`~gcnt.rl.td3.loss.deterministic_actor_loss`), gradients for the actor only,
-   :func:`apply_gradients`, then :func:`soft_update` of all four target networks by ``tau``.
+   :func:`apply_gradients`, then :func:`soft_update` of all target networks by ``tau`` (one
+   foreach lerp).
 
 Steps 4 and 5 are the two functions the ``compile:`` recipe section may compile or capture
 (:mod:`gcnt.rl.accelerate`). Exploration is the actor plus Gaussian noise, clipped to the
@@ -53,6 +55,7 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 
 from gcnt import keys as K
+from gcnt.envs.stepper import usable_cpus
 from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe
@@ -63,6 +66,7 @@ from gcnt.rl.device import load_optimizer_state
 from gcnt.rl.factories import load_weights, make_net, network_weights
 from gcnt.rl.td3 import replay as rb
 from gcnt.rl.td3.config import TD3Config, target_rule
+from gcnt.rl.td3.ensemble import Ensemble, is_members_layout, stack_members
 from gcnt.rl.td3.exploration import GaussianExploration
 from gcnt.rl.td3.loss import (
     critic_error,
@@ -71,8 +75,7 @@ from gcnt.rl.td3.loss import (
     target_noise,
     td_target,
 )
-from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule, has_dropout
-from gcnt.rl.td3.twin import InTurn, make_pair_runner
+from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule
 
 log = logging.getLogger(__name__)
 
@@ -80,23 +83,28 @@ log = logging.getLogger(__name__)
 class TD3Learner:
     """Networks, optimisers and the update steps; no env, no buffer (benchmarkable alone).
 
-    The actor and the two critics are the method's TensorDict chains; the update calls the same
-    modules on plain tensors (:class:`TensorChain`), with robot-only stages computed once per
-    robot, and the collector runs the actor the same way (:class:`TensorChainModule`). Targets are copies of the online networks,
+    The actor and the two critics are the method's TensorDict chains (the critics as one
+    :class:`~gcnt.rl.td3.ensemble.Ensemble`); the update calls the same modules on plain tensors
+    (:class:`TensorChain`), with robot-only stages computed once per robot, and the collector
+    runs the actor the same way (:class:`TensorChainModule`). Targets are copies of the online
+    networks,
     moved towards them by ``tau`` after each actor update. Two steps with static shapes, so each
     can be compiled and captured (``compile:`` recipe section, :mod:`gcnt.rl.accelerate`): the
     critic step, and the actor + target step that runs every ``policy_delay`` critic steps.
     """
 
-    def __init__(self, recipe: Recipe, env: EnvBase):
+    def __init__(self, recipe: Recipe, env: EnvBase, *, pair: bool = False):
         o: TD3Config = recipe.algo_config
         self.recipe, self.config, self.accel = recipe, o, recipe.compile
         self.device = torch.device(recipe.device)
         #: the TD target rule (``td3.target``, resolved for the network)
         self.rule = target_rule(o, recipe.network.name)
         self.actor = make_net(recipe, env, "td3_actor")
-        # two independently initialised critics (each layer keeps its own init scheme)
-        self.critics = torch.nn.ModuleList(make_net(recipe, env, "td3_critic") for _ in range(2))
+        # two independently initialised critics (each layer keeps its own init scheme), as one
+        # ensemble (``pair``: as two networks run in turn, the previous layout, kept to compare)
+        critics = [make_net(recipe, env, "td3_critic") for _ in range(2)]
+        self.pair = pair
+        self.critics = torch.nn.ModuleList(critics) if pair else Ensemble(critics)
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self._chains()
@@ -107,41 +115,47 @@ class TD3Learner:
         opt_kw = optimizer_kwargs(self.accel, self.device)
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=o.lr, **opt_kw)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=o.lr, **opt_kw)
-        #: how the twin (target) critics run: in turn, or at once on two threads
-        self.twin = make_pair_runner(
-            self.accel.twin_threads,
-            self.device,
-            compiled=self.accel.compile or self.accel.cudagraphs,
-            dropout=has_dropout(self.critics),
-            torch_threads=self.accel.torch_threads,
-        )
         self.critic_step = accelerate(self._critic_step, self.accel, self.device)
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
 
     def _chains(self) -> None:
-        """The plain-tensor calls of the four networks."""
+        """The plain-tensor calls of the networks."""
         self.f_actor = TensorChain(self.actor)
-        self.f_critics = [TensorChain(c) for c in self.critics]
         self.f_target_actor = TensorChain(self.target_actor)
-        self.f_target_critics = [TensorChain(c) for c in self.target_critics]
+        if self.pair:
+            self.f_critics = [TensorChain(c) for c in self.critics]
+            self.f_target_critics = [TensorChain(c) for c in self.target_critics]
 
     def loss_shell(self) -> TD3Learner:
-        """A learner with copies of this one's four networks and settings, and no optimiser or
+        """A learner with copies of this one's networks and settings, and no optimiser or
         step: its :meth:`critic_loss` and :meth:`actor_loss` run with whatever parameters are
         swapped into its networks (``gcnt.rl.td3.stacked`` swaps each seed's in, leaving the seeds'
         own modules untouched)."""
         shell = object.__new__(type(self))
         shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
-        shell.rule = self.rule
+        shell.rule, shell.pair = self.rule, self.pair
         shell.device = self.device
-        shell.twin = InTurn()  # vmapped by the stacked learner: no threads inside
         shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
         shell.target_actor = copy.deepcopy(self.target_actor)
         shell.target_critics = copy.deepcopy(self.target_critics)
         shell._chains()
         shell.updates = self.updates
         return shell
+
+    def _twin(
+        self, critics: torch.nn.Module, inputs: dict, robots, then: Callable[[dict], torch.Tensor]
+    ) -> torch.Tensor:
+        """``then`` of both critics' chain outputs on ``inputs``, stacked [2, ...]: one vmapped
+        call of the ensemble (or, ``pair``, the two networks in turn)."""
+        if not self.pair:
+            return critics(inputs, robots, then)
+        chains = self.f_critics if critics is self.critics else self.f_target_critics
+        return torch.stack([then(f(inputs, robots)) for f in chains])
+
+    def _robots(self, ids: torch.Tensor):
+        critic = self.f_critics[0] if self.pair else self.critics.chain
+        return self.f_actor.robot_batch(ids, critic)
 
     # ------------------------------------------------------------------ the two steps
     def _inputs(self, batch: TensorDictBase, next_step: bool) -> dict:
@@ -157,16 +171,13 @@ class TD3Learner:
         batch: TensorDictBase,
         noise: torch.Tensor | None = None,
         morph_id: torch.Tensor | None = None,
-        backward: bool = False,
     ) -> torch.Tensor:
         """The twin-critic loss on ``batch`` (the sum of the critics' errors). ``noise``: the
         target-smoothing noise (drawn here first when not given, as :func:`target_noise`);
-        ``morph_id``: the samples' robots (read from ``batch`` when not given); ``backward``:
-        backpropagate each critic's error where it is computed (on its thread, see
-        :attr:`twin`) and return the loss detached."""
+        ``morph_id``: the samples' robots (read from ``batch`` when not given)."""
         o = self.config
         ids = batch.get(MORPH_ID) if morph_id is None else morph_id
-        robots = self.f_critics[0].robot_batch(ids, self.f_actor)
+        robots = self._robots(ids)
         mask = robots.gathered(MASK)
         action = batch.get(ACTION)
         if noise is None:
@@ -176,11 +187,11 @@ class TD3Learner:
                 nxt = self._inputs(batch, next_step=True)
                 next_action = self.f_target_actor(nxt, robots)[ACTION]
                 nxt[ACTION] = smoothed_target_action(next_action, noise)
-                next_q = self.twin.map(lambda f: f(nxt, robots)[LIMB_Q], self.f_target_critics)
+                next_q = self._twin(self.target_critics, nxt, robots, _limb_q)
                 target = td_target(
                     batch.get((K.NEXT, K.REWARD)),
                     batch.get((K.NEXT, K.TERMINATED)),
-                    tuple(next_q),
+                    tuple(next_q.unbind(0)),
                     mask,
                     o.gamma,
                     self.rule,
@@ -188,16 +199,11 @@ class TD3Learner:
             now = self._inputs(batch, next_step=False)
             now[ACTION] = action
 
-            def error(f: TensorChain) -> torch.Tensor:
-                q = f(now, robots)[LIMB_Q]
-                e = critic_error(q, target.to(q.dtype), mask, self.rule)
-                if backward:
-                    e.backward()
-                    return e.detach()
-                return e
+            def error(out: dict) -> torch.Tensor:
+                q = out[LIMB_Q]
+                return critic_error(q, _as(target, q.dtype), mask, self.rule)
 
-            errors = self.twin.map(error, self.f_critics)
-            return (errors[0] + errors[1]).to(action.dtype)
+            return _as(self._twin(self.critics, now, robots, error).sum(), action.dtype)
 
     def actor_loss(
         self, batch: TensorDictBase, morph_id: torch.Tensor | None = None
@@ -205,19 +211,27 @@ class TD3Learner:
         """-Q1 of the actor's action on ``batch``, over real limbs (``morph_id``: as in
         :meth:`critic_loss`)."""
         ids = batch.get(MORPH_ID) if morph_id is None else morph_id
-        robots = self.f_actor.robot_batch(ids, self.f_critics[0])
+        robots = self._robots(ids)
+        mask = robots.gathered(MASK)
         with autocast(self.accel, self.device):
             now = self._inputs(batch, next_step=False)
             now[ACTION] = self.f_actor(now, robots)[ACTION]
-            q1 = self.f_critics[0](now, robots)[LIMB_Q]
-            loss = deterministic_actor_loss(q1, robots.gathered(MASK), self.rule)
-            return loss.to(now[OBS].dtype)
+            if self.pair:
+                q1 = self.f_critics[0](now, robots)[LIMB_Q]
+                loss = deterministic_actor_loss(q1, mask, self.rule)
+            else:
+                # both critics in one call; the gradient reaches the actor through Q1 alone
+                loss = self.critics(
+                    now, robots, lambda out: deterministic_actor_loss(out[LIMB_Q], mask, self.rule)
+                )[0]
+            return _as(loss, now[OBS].dtype)
 
     # Both steps take and return TensorDicts (what a CUDA graph captures) and leave no gradient
     # behind (zeroed after the optimiser step, as a captured graph needs).
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update on ``batch``; returns ``loss_critic``."""
-        loss = self.critic_loss(batch, backward=True)
+        loss = self.critic_loss(batch)
+        loss.backward()
         apply_gradients(self.critic_opt, self.critic_params, self.config.max_grad_norm, clip_norm)
         return TensorDict({"loss_critic": loss.detach()})
 
@@ -268,21 +282,68 @@ class TD3Learner:
                 "from it"
             )
         for key in ("actor", "critics", "target_actor", "target_critics"):
+            weights = state[key]
+            if key.endswith("critics") and not self.pair and is_members_layout(weights):
+                weights = stack_members(weights, 2)  # two networks' weights (older runs)
             try:
-                load_weights(getattr(self, key), state[key])
+                load_weights(getattr(self, key), weights)
             except ValueError as e:
                 raise ValueError(f"TD3 {key}: {e}") from None
 
     def load_state_dict(self, state: dict) -> None:
         self.load_networks(state)
         load_optimizer_state(self.actor_opt, state["actor_opt"])
-        load_optimizer_state(self.critic_opt, state["critic_opt"])
+        critic_opt = state["critic_opt"]
+        if not self.pair:
+            critic_opt = stack_pair_adam(critic_opt, len(self.critic_params))
+        load_optimizer_state(self.critic_opt, critic_opt)
         # the recipe's learning rate wins over the saved one: a run resumed with another
         # td3.lr (e.g. after a divergence) trains with it
         for opt in (self.actor_opt, self.critic_opt):
             for group in opt.param_groups:
                 group["lr"] = self.config.lr
         self.updates = state["updates"]
+
+
+def one_update_thread(recipe: Recipe) -> bool:
+    """Whether a run's TD3 update takes 1 torch intra-op thread instead of torch's default (one
+    per core): an eager update on a CPU with 2 to 4 usable cores and ``compile.torch_threads``
+    unset. Its kernels are too small to split across threads, and on a machine shared with
+    other jobs each kernel's parallel region waits for a thread another job has taken (the
+    quick start's update 2.5x slower on 2 threads than on 1 beside other jobs on 2 cores)."""
+    return (
+        torch.device(recipe.device).type == "cpu"
+        and recipe.compile.torch_threads is None
+        and not recipe.compile.compile
+        and 2 <= usable_cpus() <= 4
+    )
+
+
+def stack_pair_adam(state: dict, num_params: int) -> dict:
+    """An Adam state dict over two critics' parameters (critic 1's, then critic 2's: 2P
+    tensors, as runs before the ensemble saved it) as the ensemble's: P stacked tensors, each
+    moment [2, ...]; one already stacked is returned as it is."""
+    (group,) = state["param_groups"]
+    ids = group["params"]
+    if len(ids) != 2 * num_params:
+        return state
+    moments = state["state"]
+    stacked = {}
+    for j in range(num_params):
+        a, b = moments.get(ids[j]), moments.get(ids[num_params + j])
+        if not a or not b:
+            continue
+        stacked[ids[j]] = {k: a[k].clone() if k == "step" else torch.stack([a[k], b[k]]) for k in a}
+    return {"state": stacked, "param_groups": [{**group, "params": ids[:num_params]}]}
+
+
+def _limb_q(out: dict) -> torch.Tensor:
+    return out[LIMB_Q]
+
+
+def _as(t: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """``t`` in ``dtype`` (no operation when it already is)."""
+    return t if t.dtype == dtype else t.to(dtype)
 
 
 def clip_norm(params: Sequence[torch.Tensor], max_norm: float) -> None:
@@ -387,6 +448,14 @@ class TD3(Algorithm):
         super().__init__(recipe, env, robots)
         c: TD3Config = self.config
         n = len(self.robots)
+        if one_update_thread(recipe) and torch.get_num_threads() != 1:
+            log.info(
+                "TD3 update on a %d-core CPU: torch intra-op threads %d -> 1 "
+                "(compile.torch_threads sets them)",
+                usable_cpus(),
+                torch.get_num_threads(),
+            )
+            torch.set_num_threads(1)
         self.learner = TD3Learner(recipe, env)
         capacity = rb.per_robot_capacity(n, c.buffer_size_per_robot, c.buffer_total_size)
         replay_device = recipe.device if recipe.compile.replay_on_device else "cpu"

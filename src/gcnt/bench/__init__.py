@@ -1,0 +1,1 @@
+"""The benchmarks behind ``gcnt bench-train``, one module per algorithm."""

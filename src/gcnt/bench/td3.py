@@ -1,0 +1,375 @@
+"""TD3's benchmarks for ``gcnt bench-train``: what an update costs, and what training adds to it.
+
+Default recipe: the quick start (short episodes, so that the paper schedule, which updates when
+episodes end, updates within the timed window). For each schedule, in one run:
+
+1. the bare update (:func:`bare_update_rate`): the same networks on one fixed mini-batch shaped
+   as the schedule samples it, no env, no buffer. Its updates/s; its operators (device kernels
+   on a GPU, dispatched operators on a CPU) for the critic step and for the actor step (one per
+   ``policy_delay`` updates) separately; its arithmetic (FLOPs of the matrix products) against
+   the machine's matmul peak; and the previous layout's update (the two critics as two networks
+   run in turn, ``TD3Learner(pair=True)``) timed in alternate rounds with it, so that the ratio
+   new ÷ previous holds under one machine load;
+2. ``gcnt train`` with the same recipe end to end (:func:`end_to_end_rate`), measured after the
+   random-exploration phase: environment steps per second and updates per second. The ratio of
+   end-to-end to bare updates/s is the fraction of time spent learning; 1.0 means the env,
+   collector and buffers cost nothing. With one update per environment step (the paper), env
+   steps/s equals updates/s in the long run. End to end collects in the recipe's own batches
+   (``td3.steps_per_batch``), as ``gcnt train`` does;
+3. the replay's mixed sample (:func:`replay_sample_ms`) against torchrl's per-robot buffers.
+
+``--stacked-seeds S`` instead (:func:`run_stacked`): the update of 1..S seeds stacked (``gcnt
+train --seeds``) against one seed's own.
+
+The update runs on the torch threads training gives it (:func:`gcnt.rl.td3.learner.
+one_update_thread`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+from gcnt.bench.common import (
+    arithmetic,
+    arithmetic_line,
+    count_flops,
+    count_launches,
+    device_line,
+    launch_line,
+    matmul_peak_gflops,
+    train_quietly,
+)
+
+
+def fixed_batch(recipe):
+    """The env (closed) and one mini-batch shaped as ``recipe``'s schedule samples it."""
+    from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import replay as rb
+
+    c = recipe.td3
+    robots = train_robots(recipe)
+    env = make_env(recipe, robots)
+    data = env.rollout(-(-c.batch_size // env.batch_size[0]) + 1, break_when_any_done=False)
+    env.close()
+    replay = rb.RobotReplay(len(robots), capacity=data.numel(), batch_size=c.batch_size)
+    replay.extend(data)
+    batch = replay.sample_mixed() if c.schedule == "mixed" else replay.sample_robot(0)
+    return env, batch.to(recipe.device)
+
+
+def step_operators(learner, batch, device: str) -> dict:
+    """Launches of one critic step and of one actor step (:func:`count_launches`), and per
+    update (the actor step once every ``policy_delay`` updates)."""
+    critic = count_launches(lambda: learner.critic_step(batch), device)
+    actor = count_launches(lambda: learner.actor_step(batch), device)
+    return {
+        "critic_step": critic,
+        "actor_step": actor,
+        "per_update": critic + actor / learner.config.policy_delay,
+    }
+
+
+def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
+    """Updates/s of the learner on one fixed mini-batch (median of ``rounds`` rounds), and of the
+    previous layout (``TD3Learner(pair=True)``) in alternate rounds; the operators of each
+    (:func:`step_operators`) and the FLOPs per update (counted over one ``policy_delay`` period
+    of the warm-up: a critic step each update, an actor step once)."""
+    import torch
+
+    from gcnt.rl.td3.learner import TD3Learner
+
+    env, batch = fixed_batch(recipe)
+    learners = {"new": TD3Learner(recipe, env), "previous": TD3Learner(recipe, env, pair=True)}
+    period = recipe.td3.policy_delay
+    out: dict = {"threads": torch.get_num_threads()}
+    for name, learner in learners.items():
+        for _ in range(period + 1):  # warm-up (first calls allocate; the actor step has run)
+            learner.update(batch)
+        out[name] = {"operators": step_operators(learner, batch, recipe.device)}
+    flops, _ = count_flops(lambda: [learners["new"].update(batch) for _ in range(period)])
+    out["flops_per_update"] = flops / period
+    # whole policy_delay periods per round, so that every round holds the same actor steps
+    per_round = max(period, -(-n_updates // rounds // period) * period)
+    seconds: dict[str, list[float]] = {k: [] for k in learners}
+    for _ in range(rounds):
+        for name, learner in learners.items():
+            t0 = time.perf_counter()
+            rows = [learner.step(batch) for _ in range(per_round)]
+            torch.stack([r["loss_critic"] for r in rows]).sum().item()  # wait for the device
+            seconds[name].append((time.perf_counter() - t0) / per_round)
+    for name in learners:
+        out[name]["update_ms"] = 1e3 * statistics.median(seconds[name])
+        out[name]["updates_per_s"] = 1e3 / out[name]["update_ms"]
+    out["ratio_to_previous"] = out["new"]["update_ms"] / out["previous"]["update_ms"]
+    return out
+
+
+def replay_sample_ms(recipe, repeats: int = 50, capacity: int = 1000) -> dict:
+    """ms per mixed mini-batch (batch_size of every robot): torchrl's per-robot
+    ReplayBufferEnsemble (the previous layout) against the one [robots, capacity] storage."""
+    from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import replay as rb
+
+    c = recipe.td3
+    robots = train_robots(recipe)
+    env = make_env(recipe, robots)
+    data = env.rollout(max(c.batch_size, 20), break_when_any_done=False)
+    env.close()
+    one = rb.RobotReplay(len(robots), capacity, c.batch_size)
+    one.extend(data)
+    ensemble = make_ensemble(len(robots), capacity, c.batch_size)
+    ensemble_store(ensemble, data)
+    out = {}
+    for name, sample in (
+        ("ensemble", lambda: ensemble_sample_mixed(ensemble)),
+        ("one_storage", one.sample_mixed),
+    ):
+        sample()
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            sample()
+        out[name] = (time.perf_counter() - t0) / repeats * 1e3
+    return out
+
+
+def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
+    """Env steps/s and updates/s of ``gcnt train`` over ``steps`` env steps after ``warmup``
+    random ones, collected in the recipe's own batches (``td3.steps_per_batch`` lockstep steps).
+    The warm-up covers at least a mini-batch of every robot, so that each timed step is followed
+    by its updates (the schedule waits for full mini-batches: steps before that would count as
+    time without updates).
+
+    A metrics row is logged after every collected batch, with the rates of that batch alone;
+    the timed window is the batches the policy acted in (after the random phase, rounded up to
+    whole batches as training rounds it): their steps, updates and seconds summed. The batch
+    that ends the random phase is left out: it is collected with random actions."""
+    from gcnt.rl.factories import train_robots
+
+    warmup = max(warmup, recipe.td3.batch_size * len(train_robots(recipe)))
+    recipe.td3.init_random_frames = warmup
+    recipe.collector.total_frames = warmup + steps
+    all_rows = train_quietly(recipe, 1)
+    random_end = recipe.resolved["init_random_frames"]
+    prev = [r for r in all_rows if r["env_steps"] <= random_end]
+    rows = [r for r in all_rows if r["env_steps"] > random_end]
+    if not prev or not rows:
+        from gcnt.recipes import RecipeError
+
+        raise RecipeError(
+            f"bench-train: no batch after the random phase ({random_end} env steps) within "
+            f"{warmup + steps}: raise --steps"
+        )
+    secs = sum(
+        (r["env_steps"] - p["env_steps"]) / r["env_steps_per_s"]
+        for p, r in zip([prev[-1], *rows], rows, strict=False)
+    )
+    span = rows[-1]["env_steps"] - prev[-1]["env_steps"]
+    updates = rows[-1]["updates"] - prev[-1]["updates"]
+    return {
+        "env_steps_per_s": span / secs,
+        "updates_per_s": updates / secs,
+        "updates": updates,
+        "env_steps": span,
+    }
+
+
+def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
+    """ms per update (critic step, plus the actor step every ``policy_delay``) on one fixed
+    mixed mini-batch: one seed's own :class:`TD3Learner` step, and S = 1..``max_seeds`` seeds
+    stacked (:class:`StackedTD3Learner`, the same batch and noise for every seed)."""
+    import torch
+
+    from gcnt.keys import ACTION
+    from gcnt.rl.td3.learner import TD3Learner
+    from gcnt.rl.td3.loss import target_noise
+    from gcnt.rl.td3.stacked import StackedTD3Learner
+
+    c = recipe.td3
+    env, batch = fixed_batch(recipe)
+    learners = []
+    for seed in range(max_seeds):
+        torch.manual_seed(seed)
+        learners.append(TD3Learner(recipe, env))
+    single = TD3Learner(recipe, env)
+
+    def time_steps(step, arg) -> float:
+        for _ in range(2 * c.policy_delay):  # warm-up
+            step(arg)
+        t0 = time.perf_counter()
+        out = [step(arg) for _ in range(n_updates)]
+        torch.stack([row["loss_critic"] for row in out]).sum().item()  # wait for the device
+        return (time.perf_counter() - t0) / n_updates * 1e3
+
+    threads = torch.get_num_threads()
+    out = {"single_ms": time_steps(single.step, batch), "stacked_ms": {}}
+    out["single_threads"] = f"{threads} torch threads"
+    out["stacked_threads"] = threads
+    noise = target_noise(batch.get(ACTION), c.policy_noise, c.noise_clip)
+    for s in range(1, max_seeds + 1):
+        stacked = StackedTD3Learner(learners[:s])
+        out["stacked_ms"][s] = time_steps(
+            stacked.step, stacked.stack_batches([batch] * s, [noise] * s)
+        )
+    return out
+
+
+def run_stacked(args: argparse.Namespace, recipe) -> int:
+    """``--stacked-seeds S``: the stacked update against one seed's, in one run."""
+
+    from gcnt.recipes import RecipeError
+
+    if args.stacked_seeds < 1:
+        raise RecipeError(f"--stacked-seeds must be >= 1, got {args.stacked_seeds}")
+    recipe.td3.schedule = "mixed"
+    ms = stacked_update_ms(recipe, args.stacked_seeds, args.updates)
+    out = {
+        "recipe": args.recipe,
+        "algo": "td3",
+        "network": recipe.network.name,
+        "device": recipe.device,
+        "batch_size": recipe.td3.batch_size,
+        "single_seed_threads": ms["single_threads"],
+        "stacked_torch_threads": ms["stacked_threads"],
+        "single_seed_update_ms": ms["single_ms"],
+        "stacked_update_ms": ms["stacked_ms"],
+        # time of S seeds' updates made together, in units of one seed's own update
+        "ratio": {s: t / ms["single_ms"] for s, t in ms["stacked_ms"].items()},
+    }
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(
+        f"one seed's own TD3 update: {ms['single_ms']:.2f} ms ({recipe.network.name}, "
+        f"mixed batch of {recipe.td3.batch_size} per robot, {ms['single_threads']})"
+    )
+    for s, t in ms["stacked_ms"].items():
+        print(
+            f"{s} seed(s) stacked ({ms['stacked_threads']} torch threads): {t:8.2f} ms per update "
+            "of all of them = "
+            f"{out['ratio'][s]:.2f}x one seed's update ({out['ratio'][s] / s:.2f}x per seed)"
+        )
+    return 0
+
+
+def run_td3(args: argparse.Namespace, recipe) -> int:
+    """Both schedules in one run: the bare update (new and previous), end to end, and the
+    replay sample time."""
+    import copy
+
+    import torch
+
+    from gcnt.rl.td3.learner import one_update_thread
+
+    if one_update_thread(recipe):  # as training will set them
+        torch.set_num_threads(1)
+    peak = matmul_peak_gflops(device=recipe.device, amp=recipe.compile.amp)
+    out = {
+        "recipe": args.recipe,
+        "algo": "td3",
+        "network": recipe.network.name,
+        "batch_size": recipe.td3.batch_size,
+        "updates_per_step": recipe.td3.updates_per_step,
+        "matmul_peak_gflops": peak,
+        "replay_sample_ms": replay_sample_ms(recipe),
+        "schedules": {},
+    }
+    for schedule in ("paper", "mixed"):
+        r = copy.deepcopy(recipe)
+        r.td3.schedule = schedule
+        m = bare_update_rate(r, args.updates)
+        bare = m["new"]["updates_per_s"]
+        e2e = end_to_end_rate(r, args.warmup, args.steps)
+        out["schedules"][schedule] = {
+            "bare_updates_per_s": bare,
+            "bare_update_ms": m["new"]["update_ms"],
+            "torch_threads": m["threads"],
+            "operators": m["new"]["operators"],
+            "previous_update_ms": m["previous"]["update_ms"],
+            "previous_operators": m["previous"]["operators"],
+            # new ÷ previous bare update time, alternate rounds of one run
+            "ratio_to_previous": m["ratio_to_previous"],
+            "arithmetic": arithmetic(m["flops_per_update"], bare, peak),
+            "launches_per_update": m["new"]["operators"]["per_update"],
+            "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
+            "end_to_end_updates_per_s": e2e["updates_per_s"],
+            "updates": e2e["updates"],
+            # time per update end to end vs bare: what the env, collector and replay add
+            "ratio": e2e["updates_per_s"] / bare if e2e["updates"] else float("nan"),
+        }
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    rs = out["replay_sample_ms"]
+    print(
+        f"replay sample (mixed, {recipe.td3.batch_size} of each robot): ensemble "
+        f"{rs['ensemble']:.2f} ms, one storage {rs['one_storage']:.2f} ms"
+    )
+    what = "device kernels" if torch.device(recipe.device).type == "cuda" else "operators"
+    for schedule, row in out["schedules"].items():
+        ops, prev = row["operators"], row["previous_operators"]
+        print(
+            f"{schedule:6s} bare TD3 update {row['bare_updates_per_s']:8.2f} updates/s "
+            f"({row['bare_update_ms']:.1f} ms, {row['torch_threads']} torch threads)"
+        )
+        print(
+            f"       {what}: critic step {ops['critic_step']:,}, actor step {ops['actor_step']:,} "
+            f"(every {recipe.td3.policy_delay} updates): {ops['per_update']:,.0f} per update; "
+            f"previous (two critics in turn) {prev['critic_step']:,} / {prev['actor_step']:,}: "
+            f"{prev['per_update']:,.0f}"
+        )
+        print(
+            f"       previous update {row['previous_update_ms']:.1f} ms; new ÷ previous "
+            f"{row['ratio_to_previous']:.2f} (alternate rounds)"
+        )
+        print(arithmetic_line(row["arithmetic"], peak))
+        print(launch_line(row["launches_per_update"], row["bare_update_ms"], recipe.device))
+        if not row["updates"]:
+            print(
+                f"{schedule:6s} no update in the {args.steps} timed env steps (the paper schedule "
+                "updates when episodes end): raise --steps, or use a recipe with shorter episodes"
+            )
+            continue
+        print(
+            f"{schedule:6s} end to end {row['end_to_end_env_steps_per_s']:8.2f} env steps/s, "
+            f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates); "
+            f"ratio to the bare update {row['ratio']:.3f} (the share of the time spent in "
+            "updates; the rest is the env, collection and replay)"
+        )
+        if row["ratio"] > 1.05:
+            print(
+                "       a share above 1 cannot be: the machine's load changed between the bare "
+                "and the end-to-end measurement; measure on an idle machine"
+            )
+    print(device_line(recipe.device))
+    return 0
+
+
+def make_ensemble(num_robots: int, capacity: int, batch_size: int, device="cpu"):
+    """Per-robot torchrl buffers (a ``ReplayBufferEnsemble``) routed by ``morph_id``: what
+    :class:`~gcnt.rl.td3.replay.RobotReplay` is measured against."""
+    from torchrl.data import LazyTensorStorage, ReplayBuffer, ReplayBufferEnsemble
+
+    from gcnt.keys import MORPH_ID
+
+    buffers = [
+        ReplayBuffer(storage=LazyTensorStorage(capacity, device=device), batch_size=batch_size)
+        for _ in range(num_robots)
+    ]
+    return ReplayBufferEnsemble(
+        *buffers, routing_key=MORPH_ID, sample_from_all=True, batch_size=batch_size * num_robots
+    )
+
+
+def ensemble_store(replay, data) -> int:
+    from gcnt.rl.td3 import replay as rb
+
+    flat = data.select(*rb.STORED_KEYS).reshape(-1)
+    replay.extend(flat)
+    return flat.numel()
+
+
+def ensemble_sample_mixed(replay):
+    return replay.sample().exclude("index").reshape(-1)
