@@ -238,3 +238,22 @@ def test_torch_threads_apply_to_the_run():
         torch.set_num_threads(before)
     with pytest.raises(ValueError, match="torch_threads must be >= 1"):
         load_recipe(QUICK, ["compile.torch_threads=0"])
+
+
+def test_the_update_takes_one_thread_on_a_small_cpu_unless_told(monkeypatch):
+    from gcnt.rl.td3 import learner as td3_learner
+
+    recipe = load_recipe(QUICK)
+    for cores, want in ((1, False), (2, True), (4, True), (8, False)):
+        monkeypatch.setattr(td3_learner, "usable_cpus", lambda n=cores: n)
+        assert td3_learner.one_update_thread(recipe) is want
+    assert not td3_learner.one_update_thread(load_recipe(QUICK, ["compile.torch_threads=2"]))
+
+
+def test_the_retired_twin_threads_key_is_read_and_dropped(caplog):
+    """Run directories of older versions hold compile.twin_threads: they still load."""
+    recipe = load_recipe(QUICK, ["compile.twin_threads=true"])
+    assert not hasattr(recipe.compile, "twin_threads")
+    assert "compile.twin_threads is no longer used" in caplog.text
+    with pytest.raises(ValueError, match="unknown recipe key"):
+        load_recipe(QUICK, ["compile.twin_thread=true"])

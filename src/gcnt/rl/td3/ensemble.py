@@ -50,20 +50,18 @@ class Ensemble(nn.Module):
             stacked = torch.stack([own[name].detach() for own in per_member])
             owner._parameters[leaf] = nn.Parameter(stacked, requires_grad=p.requires_grad)
         self.chain = TensorChain(self.net)
-        # vmap draws each member's dropout mask on its own, as separate networks would
-        self._randomness = "different" if has_dropout(self.net) else "error"
-
-    def _slots(self) -> list[tuple[nn.Module, str]]:
-        # every (module, name) holding a parameter, read at each call: deep copies and
-        # .to()/.double() keep pointing at the right tensors
-        return [
+        # every (module, name) holding a parameter; copies of the ensemble copy these along
+        # with the modules, and .to()/.double() keep the modules
+        self._holders = [
             (m, n) for m in self.net.modules() for n, p in m._parameters.items() if p is not None
         ]
+        # vmap draws each member's dropout mask on its own, as separate networks would
+        self._randomness = "different" if has_dropout(self.net) else "error"
 
     def forward(
         self, inputs: Mapping, robots: RobotBatch, then: Callable[[dict], Tensor]
     ) -> Tensor:
-        slots = self._slots()
+        slots = self._holders
         # the tensors in place: the stacked parameters, or a stacked seed's slices of them
         stacked = [m._parameters[n] for m, n in slots]
 

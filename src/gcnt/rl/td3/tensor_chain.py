@@ -77,7 +77,6 @@ class RobotBatch:
         self._gathered: dict[Key, Tensor] = {}
 
     def gathered(self, key: Key) -> Tensor:
-        # twin critics on two threads may both gather a key first: the same values either way
         out = self._gathered.get(key)
         if out is None:
             out = self.table[key].index_select(0, self.ids)
