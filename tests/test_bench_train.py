@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import logging
 
-from gcnt.cli import main as gcnt
 from gcnt.bench.td3 import end_to_end_rate
+from gcnt.cli import main as gcnt
 from gcnt.recipes import load_recipe
 
 
