@@ -76,6 +76,19 @@ class Ensemble(nn.Module):
 
         return torch.vmap(member, randomness=self._randomness)(stacked)
 
+    def one(self, i: int, inputs: Mapping, robots: RobotBatch, then: Callable[[dict], Tensor]):
+        """``then`` of member ``i``'s chain output alone (its slice of every stacked parameter
+        swapped in; no vmap): for a loss that reads one member, such as TD3's actor loss."""
+        slots = self._holders
+        stacked = [m._parameters[n] for m, n in slots]
+        for (m, n), p in zip(slots, stacked, strict=True):
+            m._parameters[n] = p[i]
+        try:
+            return then(self.chain(inputs, robots))
+        finally:
+            for (m, n), p in zip(slots, stacked, strict=True):
+                m._parameters[n] = p
+
     def member(self, i: int) -> nn.Module:
         """Member ``i`` as a network of its own (a copy: for inspection and evaluation)."""
         out = copy.deepcopy(self.net)

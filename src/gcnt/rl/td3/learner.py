@@ -219,11 +219,13 @@ class TD3Learner:
             if self.pair:
                 q1 = self.f_critics[0](now, robots)[LIMB_Q]
                 loss = deterministic_actor_loss(q1, mask, self.rule)
-            else:
-                # both critics in one call; the gradient reaches the actor through Q1 alone
-                loss = self.critics(
-                    now, robots, lambda out: deterministic_actor_loss(out[LIMB_Q], mask, self.rule)
-                )[0]
+            else:  # critic 1 alone
+                loss = self.critics.one(
+                    0,
+                    now,
+                    robots,
+                    lambda out: deterministic_actor_loss(out[LIMB_Q], mask, self.rule),
+                )
             return _as(loss, now[OBS].dtype)
 
     # Both steps take and return TensorDicts (what a CUDA graph captures) and leave no gradient
