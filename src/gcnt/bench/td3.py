@@ -216,6 +216,16 @@ def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
     return out
 
 
+def training_threads(recipe) -> None:
+    """torch's intra-op threads as ``gcnt train`` sets them for ``recipe``'s TD3 update."""
+    import torch
+
+    from gcnt.rl.td3.learner import one_update_thread
+
+    if one_update_thread(recipe):
+        torch.set_num_threads(1)
+
+
 def run_stacked(args: argparse.Namespace, recipe) -> int:
     """``--stacked-seeds S``: the stacked update against one seed's, in one run."""
 
@@ -261,10 +271,6 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
 
     import torch
 
-    from gcnt.rl.td3.learner import one_update_thread
-
-    if one_update_thread(recipe):  # as training will set them
-        torch.set_num_threads(1)
     peak = matmul_peak_gflops(device=recipe.device, amp=recipe.compile.amp)
     out = {
         "recipe": args.recipe,

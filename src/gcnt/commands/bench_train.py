@@ -92,7 +92,9 @@ def _measure(args: argparse.Namespace, recipe) -> int:
         raise RecipeError(
             f"bench-train measures TD3 and PPO recipes; {args.recipe} has algo {recipe.algo}"
         )
-    from gcnt.bench.td3 import run_stacked, run_td3
+    from gcnt.bench.td3 import run_stacked, run_td3, training_threads
+
+    training_threads(recipe)
 
     if args.stacked_seeds is not None:
         return run_stacked(args, recipe)
