@@ -87,9 +87,8 @@ class TD3Learner:
     :class:`~gcnt.rl.td3.ensemble.Ensemble`); the update calls the same modules on plain tensors
     (:class:`TensorChain`), with robot-only stages computed once per robot, and the collector
     runs the actor the same way (:class:`TensorChainModule`). Targets are copies of the online
-    networks,
-    moved towards them by ``tau`` after each actor update. Two steps with static shapes, so each
-    can be compiled and captured (``compile:`` recipe section, :mod:`gcnt.rl.accelerate`): the
+    networks, moved towards them by ``tau`` after each actor update. Two steps with static
+    shapes, so each can be compiled and captured (``compile:`` recipe section, :mod:`gcnt.rl.accelerate`): the
     critic step, and the actor + target step that runs every ``policy_delay`` critic steps.
     """
 
