@@ -88,8 +88,9 @@ class TD3Learner:
     (:class:`TensorChain`), with robot-only stages computed once per robot, and the collector
     runs the actor the same way (:class:`TensorChainModule`). Targets are copies of the online
     networks, moved towards them by ``tau`` after each actor update. Two steps with static
-    shapes, so each can be compiled and captured (``compile:`` recipe section, :mod:`gcnt.rl.accelerate`): the
-    critic step, and the actor + target step that runs every ``policy_delay`` critic steps.
+    shapes, so each can be compiled and captured (``compile:`` recipe section,
+    :mod:`gcnt.rl.accelerate`): the critic step, and the actor + target step that runs every
+    ``policy_delay`` critic steps.
     """
 
     def __init__(self, recipe: Recipe, env: EnvBase, *, pair: bool = False):
