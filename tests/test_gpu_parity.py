@@ -66,7 +66,7 @@ def _same_adam(*opts: torch.optim.Optimizer) -> None:
     into a whole learning rate."""
     for opt in opts:
         for group in opt.param_groups:
-            group.update(capturable=True, foreach=True)
+            group.update(capturable=True, foreach=True, fused=False)
 
 
 def _learners(method: str, env, n: int = 1, graphed: bool = False):

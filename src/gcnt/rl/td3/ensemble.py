@@ -25,8 +25,14 @@ from collections.abc import Callable, Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
+from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from gcnt.rl.td3.tensor_chain import RobotBatch, TensorChain, has_dropout
+
+
+#: the attention kernel under vmap: the math one (vmap's batching of the fused kernels takes no
+#: gradient for a learnt additive mask such as GCNT's distance bias)
+VMAP_SDPA = [SDPBackend.MATH]
 
 
 class Ensemble(nn.Module):
@@ -74,7 +80,8 @@ class Ensemble(nn.Module):
                 for (m, n), p in zip(slots, stacked, strict=True):
                     m._parameters[n] = p
 
-        return torch.vmap(member, randomness=self._randomness)(stacked)
+        with sdpa_kernel(VMAP_SDPA):
+            return torch.vmap(member, randomness=self._randomness)(stacked)
 
     def one(self, i: int, inputs: Mapping, robots: RobotBatch, then: Callable[[dict], Tensor]):
         """``then`` of member ``i``'s chain output alone (its slice of every stacked parameter

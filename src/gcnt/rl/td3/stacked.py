@@ -30,7 +30,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictParams
 from torch import nn
-from torch.nn.attention import SDPBackend, sdpa_kernel
+from torch.nn.attention import sdpa_kernel
 
 from gcnt.keys import ACTION, MORPH_ID
 from gcnt.rl.accelerate import accelerate, optimizer_kwargs
@@ -43,14 +43,12 @@ from gcnt.rl.td3.learner import (
     loss_rows,
     soft_update,
 )
+from gcnt.rl.td3.ensemble import VMAP_SDPA
 from gcnt.rl.td3.loss import target_noise
 from gcnt.rl.td3.tensor_chain import has_dropout
 
 #: where a stacked batch carries each seed's target-smoothing noise (shaped like the action)
 NOISE = "target_noise"
-#: attention kernel under vmap: the math one (vmap's batching of the fused CPU kernel takes no
-#: gradient for a learnt additive mask such as GCNT's distance bias)
-_SDPA = [SDPBackend.MATH]
 #: hyperparameters that must agree for one stacked optimiser to equal the seeds' own
 _SHARED = ("lr", "gamma", "tau", "policy_delay", "policy_noise", "noise_clip", "max_grad_norm")
 
@@ -162,7 +160,7 @@ class StackedTD3Learner:
         """One critic update of every seed; returns ``loss_critic`` [S]."""
         o = self.config
         ids = batch.get(MORPH_ID)[0]
-        with sdpa_kernel(_SDPA):
+        with sdpa_kernel(VMAP_SDPA):
             loss = torch.vmap(self._seed_critic_loss, (0, 0, 0, None))(
                 self.online, self.target, batch, ids
             )
@@ -177,7 +175,7 @@ class StackedTD3Learner:
         ``loss_actor`` [S]."""
         o = self.config
         ids = batch.get(MORPH_ID)[0]
-        with sdpa_kernel(_SDPA):
+        with sdpa_kernel(VMAP_SDPA):
             loss = torch.vmap(self._seed_actor_loss, (0, 0, None))(self.online, batch, ids)
             grads = torch.autograd.grad(loss.sum(), self.actor_leaves, allow_unused=True)
         # contiguous, as backward() would lay them out: vmap returns some gradients strided, and
