@@ -1,7 +1,7 @@
 """A TD3 run written before the twin critics became one ensemble (``tests/data/td3_run_b52e8ec``:
 a tiny run made by the code of commit b52e8ec, whose checkpoint holds the two critics' weights
-as ``0.<name>``/``1.<name>`` and one Adam over both critics' 2P tensors, and whose recipe holds
-the retired ``compile.twin_threads``) loads into the ensemble, resumes and evaluates."""
+as ``0.<name>``/``1.<name>`` and one Adam over both critics' 2P tensors) loads into the
+ensemble, resumes and evaluates."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ FIXTURE = Path(__file__).parent / "data" / "td3_run_b52e8ec"
 
 def test_the_older_learner_state_loads_into_the_ensemble():
     run = RunDir(FIXTURE)
-    recipe = run.load_recipe()  # holds compile.twin_threads: read, and dropped
+    recipe = run.load_recipe()
     state = run.load_checkpoint()["learner"]
     assert any(k.startswith("1.") for k in state["critics"])  # the older layout indeed
     env = make_env(recipe, train_robots(recipe))

@@ -15,6 +15,7 @@ from gcnt.recipes import load_recipe
 from gcnt.rl.factories import make_env, train_robots
 from gcnt.rl.td3 import replay as rb
 from gcnt.rl.td3.learner import TD3Learner, stack_pair_adam
+from gcnt.rl.td3.twin import AtOnce, InTurn, make_pair_runner
 
 ROOT = Path(__file__).parents[1]
 QUICK = ROOT / "recipes/quickstart.yaml"
@@ -145,9 +146,10 @@ def test_soft_target_update_moves_targets_by_tau():
         torch.testing.assert_close(t, (1 - tau) * b + tau * p)
 
 
-def _learner_pair(method, overrides=()):
-    """A float64 ensemble learner and a two-critic learner (``pair``) with the same weights, and
-    a mixed and a one-robot batch."""
+def _learner_pair(method, overrides=(), threads=False):
+    """A float64 ensemble learner (its members in one vmapped call, or with ``threads`` each on
+    its own thread) and a two-critic learner (``pair``, the critics in turn) with the same
+    weights, and a mixed and a one-robot batch."""
     net = "network.kwargs={}" if method in ("smp", "mlp") else NET
     one = ["env.robots=[hopper_5]"] if method == "mlp" else []
     recipe = load_recipe(QUICK, [net, f"network.name={method}", *one, *overrides])
@@ -157,7 +159,7 @@ def _learner_pair(method, overrides=()):
     learners = []
     for pair in (False, True):
         torch.manual_seed(0)  # the same initial weights: the ensemble stacks what it is given
-        learner = TD3Learner(recipe, env, pair=pair)
+        learner = TD3Learner(recipe, env, pair=pair, twin_threads=threads and not pair)
         for m in (learner.actor, learner.critics, learner.target_actor, learner.target_critics):
             m.double()
         learners.append(learner)
@@ -179,13 +181,26 @@ def _critic_weights(learner):
 
 
 @pytest.mark.parametrize(
-    "method",
-    ["gcnt", "gcnt_no_gcn", "gcnt_no_wl", "gcnt_no_dist", "amorpheus", "swat", "smp", "mlp"],
+    ("method", "threads"),
+    [
+        *[
+            (m, False)
+            for m in ["gcnt", "gcnt_no_gcn", "gcnt_no_wl", "gcnt_no_dist", "amorpheus", "swat"]
+        ],
+        ("smp", False),
+        ("mlp", False),
+        ("gcnt", True),
+        ("smp", True),
+    ],
 )
-def test_ensemble_updates_equal_two_separate_critics_float64(method):
+def test_ensemble_updates_equal_two_separate_critics_float64(method, threads):
     """Both schedules' batches (mixed and one robot), gradient clipping on, two actor steps: the
-    ensemble's losses, weights and Adam moments are the two separate critics'."""
-    (ens, pair), batches = _learner_pair(method, ["td3.max_grad_norm=0.5", "td3.target=limb"])
+    ensemble's losses, weights and Adam moments are the two separate critics', with its members
+    in one vmapped call or each on its own thread (``compile.twin_threads``)."""
+    (ens, pair), batches = _learner_pair(
+        method, ["td3.max_grad_norm=0.5", "td3.target=limb"], threads
+    )
+    assert ens.twin.parallel is threads and not pair.twin.parallel
     for step in range(4):
         for batch in batches:
             torch.manual_seed(step)
@@ -250,10 +265,29 @@ def test_the_update_takes_one_thread_on_a_small_cpu_unless_told(monkeypatch):
     assert not td3_learner.one_update_thread(load_recipe(QUICK, ["compile.torch_threads=2"]))
 
 
-def test_the_retired_twin_threads_key_is_read_and_dropped(caplog):
-    """Run directories of older versions hold compile.twin_threads: they still load."""
-    recipe = load_recipe(QUICK, ["compile.twin_threads=true"])
-    assert not hasattr(recipe.compile, "twin_threads")
-    assert "compile.twin_threads is no longer used" in caplog.text
-    with pytest.raises(ValueError, match="unknown recipe key"):
-        load_recipe(QUICK, ["compile.twin_thread=true"])
+def test_twin_threads_are_refused_where_they_cannot_hold():
+    with pytest.raises(ValueError, match="dropout"):
+        _double_learner(["compile.twin_threads=true", "network.name=metamorph"])
+    with pytest.raises(ValueError, match="twin_threads"):
+        load_recipe(QUICK, ["compile.twin_threads=true", "compile.compile=true"])
+    with pytest.raises(ValueError, match="torch_threads"):
+        load_recipe(QUICK, ["compile.twin_threads=true", "compile.torch_threads=2"])
+    cpu = torch.device("cpu")
+    assert isinstance(make_pair_runner(None, cpu, False, False, torch_threads=2), InTurn)
+    assert isinstance(make_pair_runner(None, cpu, True, False), InTurn)  # compiled
+    assert isinstance(make_pair_runner(None, torch.device("cuda"), False, False), InTurn)
+
+
+def test_twin_threads_work_in_a_forked_child():
+    """A process forked after the helper thread started has no helper: it starts its own."""
+    import multiprocessing
+
+    runner = AtOnce()
+    assert runner.map(abs, (-1, -2)) == [1, 2]
+    ctx = multiprocessing.get_context("fork")
+    out = ctx.Queue()
+    child = ctx.Process(target=lambda: out.put(runner.map(abs, (-3, -4))))
+    child.start()
+    assert out.get(timeout=60) == [3, 4]
+    child.join(timeout=60)
+    assert child.exitcode == 0

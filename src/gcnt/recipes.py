@@ -138,6 +138,11 @@ class CompileConfig:
     #: another job has taken (PPO's quick start ran 3.7x faster end to end on 1 than on 2 beside
     #: a busy loop on 2 cores, and 1.08x slower on 1 when idle)
     torch_threads: int | None = None
+    #: TD3: run the two critics (and the two target critics) of each update at once on two
+    #: threads, with torch's intra-op threads set to 1 for the process; null (default): on when
+    #: the update runs eagerly on a CPU with 2 to 4 usable cores, without dropout, and
+    #: torch_threads is unset or 1
+    twin_threads: bool | None = None
 
     #: switches that need a CUDA device
     CUDA_ONLY = ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs")
@@ -145,6 +150,16 @@ class CompileConfig:
     def check(self) -> None:
         if self.torch_threads is not None and self.torch_threads < 1:
             raise ValueError(f"torch_threads must be >= 1, got {self.torch_threads}")
+        if self.twin_threads and (self.torch_threads or 1) > 1:
+            raise ValueError(
+                f"twin_threads=true runs torch on 1 intra-op thread, but torch_threads is "
+                f"{self.torch_threads}; drop one of the two"
+            )
+        if self.twin_threads and (self.compile or self.cudagraphs):
+            raise ValueError(
+                "twin_threads=true runs the critics on two Python threads, which a compiled or "
+                "CUDA-graphed step cannot hold; set compile.twin_threads=false"
+            )
         if self.warmup < 1:
             raise ValueError(f"warmup must be >= 1, got {self.warmup}")
         modes = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
@@ -437,12 +452,6 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     sections: dict[str, Any] = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else str(key)
-        if path in RETIRED_KEYS:  # written by older versions: read, and left out
-            if value is not None:
-                log.warning(
-                    "recipe key %s is no longer used (%s): ignored", path, RETIRED_KEYS[path]
-                )
-            continue
         if is_recipe and key in algorithm_names() and key not in names:
             # only the active algorithm's section is validated; the others are kept as written
             sections[key] = (
@@ -507,12 +516,6 @@ def _recorded_plugins(run_dir: str) -> list[str]:
 
 #: Recipe fields that are not written as keys of their own
 _INTERNAL = ("sections",)
-
-#: keys that older versions wrote and that no longer exist: read without error (a run directory
-#: keeps its recipe), and dropped; why each went
-RETIRED_KEYS = {
-    "compile.twin_threads": "TD3's twin critics run as one ensemble, in one call",
-}
 
 
 def _apply_override(data: dict[str, Any], override: str) -> None:

@@ -62,9 +62,17 @@ def fixed_batch(recipe):
 
 def step_operators(learner, batch, device: str) -> dict:
     """Launches of one critic step and of one actor step (:func:`count_launches`), and per
-    update (the actor step once every ``policy_delay`` updates)."""
-    critic = count_launches(lambda: learner.critic_step(batch), device)
-    actor = count_launches(lambda: learner.actor_step(batch), device)
+    update (the actor step once every ``policy_delay`` updates). Counted with the twin critics
+    in turn: the profiler sees the calling thread only, and the operators are the same on two
+    threads."""
+    from gcnt.rl.td3.twin import InTurn
+
+    runner, learner.twin = learner.twin, InTurn()
+    try:
+        critic = count_launches(lambda: learner.critic_step(batch), device)
+        actor = count_launches(lambda: learner.actor_step(batch), device)
+    finally:
+        learner.twin = runner
     return {
         "critic_step": critic,
         "actor_step": actor,
@@ -73,16 +81,21 @@ def step_operators(learner, batch, device: str) -> dict:
 
 
 def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
-    """Updates/s of the learner on one fixed mini-batch (median of ``rounds`` rounds), and of the
-    previous layout (``TD3Learner(pair=True)``) in alternate rounds; the operators of each
-    (:func:`step_operators`) and the FLOPs per update (counted over one ``policy_delay`` period
-    of the warm-up: a critic step each update, an actor step once)."""
+    """Updates/s of the learner on one fixed mini-batch (median of ``rounds`` rounds), and in
+    alternate rounds of one run: the previous layout (``TD3Learner(pair=True)``: two critic
+    networks, run as the recipe runs its critics), and where the recipe runs the ensemble's
+    members on two threads, the ensemble in one vmapped call (``one_call``, the path of a GPU
+    or a compiled step). The operators of each (:func:`step_operators`) and the FLOPs per update
+    (counted over one ``policy_delay`` period of the warm-up: a critic step each update, an
+    actor step once)."""
     import torch
 
     from gcnt.rl.td3.learner import TD3Learner
 
     env, batch = fixed_batch(recipe)
     learners = {"new": TD3Learner(recipe, env), "previous": TD3Learner(recipe, env, pair=True)}
+    if learners["new"].twin.parallel:
+        learners["one_call"] = TD3Learner(recipe, env, twin_threads=False)
     period = recipe.td3.policy_delay
     out: dict = {"threads": torch.get_num_threads()}
     for name, learner in learners.items():
@@ -104,6 +117,7 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
         out[name]["update_ms"] = 1e3 * statistics.median(seconds[name])
         out[name]["updates_per_s"] = 1e3 / out[name]["update_ms"]
     out["ratio_to_previous"] = out["new"]["update_ms"] / out["previous"]["update_ms"]
+    out["twin_threads"] = learners["new"].twin.parallel
     return out
 
 
@@ -295,6 +309,8 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             "operators": m["new"]["operators"],
             "previous_update_ms": m["previous"]["update_ms"],
             "previous_operators": m["previous"]["operators"],
+            "twin_threads": m["twin_threads"],
+            "one_call": m.get("one_call"),
             # new ÷ previous bare update time, alternate rounds of one run
             "ratio_to_previous": m["ratio_to_previous"],
             "arithmetic": arithmetic(m["flops_per_update"], bare, peak),
@@ -323,13 +339,21 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         print(
             f"       {what}: critic step {ops['critic_step']:,}, actor step {ops['actor_step']:,} "
             f"(every {recipe.td3.policy_delay} updates): {ops['per_update']:,.0f} per update; "
-            f"previous (two critics in turn) {prev['critic_step']:,} / {prev['actor_step']:,}: "
+            f"previous (two critic networks) {prev['critic_step']:,} / {prev['actor_step']:,}: "
             f"{prev['per_update']:,.0f}"
         )
+        how = "members on two threads" if row["twin_threads"] else "members in one call"
         print(
-            f"       previous update {row['previous_update_ms']:.1f} ms; new ÷ previous "
-            f"{row['ratio_to_previous']:.2f} (alternate rounds)"
+            f"       critic ensemble, {how}; previous update (two critic networks) "
+            f"{row['previous_update_ms']:.1f} ms; new ÷ previous {row['ratio_to_previous']:.2f} "
+            "(alternate rounds)"
         )
+        one = row["one_call"]
+        if one:
+            print(
+                f"       the ensemble in one vmapped call (a GPU's path): {one['update_ms']:.1f} "
+                f"ms, {one['operators']['per_update']:,.0f} {what} per update"
+            )
         print(arithmetic_line(row["arithmetic"], peak))
         print(launch_line(row["launches_per_update"], row["bare_update_ms"], recipe.device))
         if not row["updates"]:

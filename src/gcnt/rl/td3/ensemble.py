@@ -83,18 +83,61 @@ class Ensemble(nn.Module):
         with sdpa_kernel(VMAP_SDPA):
             return torch.vmap(member, randomness=self._randomness)(stacked)
 
-    def one(self, i: int, inputs: Mapping, robots: RobotBatch, then: Callable[[dict], Tensor]):
-        """``then`` of member ``i``'s chain output alone (its slice of every stacked parameter
-        swapped in; no vmap): for a loss that reads one member, such as TD3's actor loss."""
-        slots = self._holders
-        stacked = [m._parameters[n] for m, n in slots]
-        for (m, n), p in zip(slots, stacked, strict=True):
-            m._parameters[n] = p[i]
-        try:
-            return then(self.chain(inputs, robots))
-        finally:
-            for (m, n), p in zip(slots, stacked, strict=True):
-                m._parameters[n] = p
+    def one(
+        self,
+        i: int,
+        inputs: Mapping,
+        robots: RobotBatch,
+        then: Callable[[dict], Tensor],
+        fixed: bool = False,
+    ) -> Tensor:
+        """``then`` of member ``i``'s chain output alone (no vmap): its slice of every stacked
+        parameter in a structural copy of the network kept for that member (sharing the
+        network's buffers), so that two members can run at once on two threads. ``fixed``: the
+        member is a constant function of its inputs (TD3's actor loss reads critic 1 and trains
+        the actor only): its slices are detached, and kept from call to call while the stacked
+        parameters are the same tensors (updated in place by the optimiser)."""
+        view, chain, slots = self._view(i)
+        stacked = [m._parameters[n] for m, n in self._holders]
+        if fixed:
+            params = self._fixed_slices(i, stacked)
+        else:
+            params = [p[i] for p in stacked]
+        for (m, n), p in zip(slots, params, strict=True):
+            m._parameters[n] = p
+        return then(chain(inputs, robots))
+
+    def _view(self, i: int) -> tuple[nn.Module, TensorChain, list]:
+        views = self.__dict__.get("_views")
+        if views is None:
+            views = self.__dict__["_views"] = {}
+        if i not in views:
+            view = _structural_copy(self.net)
+            # the holders in the copy, in the order of the network's
+            where = {id(m): c for m, c in zip(self.net.modules(), view.modules(), strict=True)}
+            slots = [(where[id(m)], n) for m, n in self._holders]
+            views[i] = (view, TensorChain(view), slots)
+        return views[i]
+
+    def _fixed_slices(self, i: int, stacked: list[Tensor]) -> list[Tensor]:
+        cache = self.__dict__.setdefault("_fixed", {})
+        hit = cache.get(i)
+        if hit is not None and all(a is b for a, b in zip(hit[0], stacked, strict=True)):
+            return hit[1]
+        slices = [p.detach()[i] for p in stacked]
+        # plain parameters only: a stacked seed's batched slices are new at every call, and a
+        # compiled step traces the slicing
+        if not torch.compiler.is_compiling() and all(
+            isinstance(p, nn.Parameter) for p in stacked
+        ):
+            cache[i] = (stacked, slices)
+        return slices
+
+    def __getstate__(self) -> dict:  # copies build their own member views and slices
+        state = dict(self.__dict__)
+        state.pop("_views", None)
+        state.pop("_fixed", None)
+        return state
 
     def member(self, i: int) -> nn.Module:
         """Member ``i`` as a network of its own (a copy: for inspection and evaluation)."""
@@ -105,6 +148,18 @@ class Ensemble(nn.Module):
                 owner = out.get_submodule(module_path)
                 owner._parameters[leaf] = nn.Parameter(p[i].clone(), requires_grad=p.requires_grad)
         return out
+
+
+def _structural_copy(module: nn.Module) -> nn.Module:
+    """``module``'s tree of modules copied, each with its own parameter slots and submodules but
+    the original's buffer dict (the robot table): a buffer the network swaps or moves, the copy
+    reads too. Its parameter slots are filled by the caller before each call."""
+    out = copy.copy(module)
+    out._parameters = dict(module._parameters)
+    out._modules = {
+        k: None if m is None else _structural_copy(m) for k, m in module._modules.items()
+    }
+    return out
 
 
 def is_members_layout(state: Mapping[str, Tensor]) -> bool:

@@ -75,7 +75,8 @@ from gcnt.rl.td3.loss import (
     target_noise,
     td_target,
 )
-from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule
+from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule, has_dropout
+from gcnt.rl.td3.twin import InTurn, make_pair_runner
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +94,14 @@ class TD3Learner:
     ``policy_delay`` critic steps.
     """
 
-    def __init__(self, recipe: Recipe, env: EnvBase, *, pair: bool = False):
+    def __init__(
+        self,
+        recipe: Recipe,
+        env: EnvBase,
+        *,
+        pair: bool = False,
+        twin_threads: bool | None = None,
+    ):
         o: TD3Config = recipe.algo_config
         self.recipe, self.config, self.accel = recipe, o, recipe.compile
         self.device = torch.device(recipe.device)
@@ -115,6 +123,15 @@ class TD3Learner:
         opt_kw = optimizer_kwargs(self.accel, self.device)
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=o.lr, **opt_kw)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=o.lr, **opt_kw)
+        #: how the twin (target) critics run: in one call of the ensemble (or in turn, ``pair``),
+        #: or one member per thread (``compile.twin_threads``; ``twin_threads`` overrides it)
+        self.twin = make_pair_runner(
+            self.accel.twin_threads if twin_threads is None else twin_threads,
+            self.device,
+            compiled=self.accel.compile or self.accel.cudagraphs,
+            dropout=has_dropout(critics[0]),
+            torch_threads=self.accel.torch_threads,
+        )
         self.critic_step = accelerate(self._critic_step, self.accel, self.device)
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
@@ -135,6 +152,7 @@ class TD3Learner:
         shell = object.__new__(type(self))
         shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
         shell.rule, shell.pair = self.rule, self.pair
+        shell.twin = InTurn()  # vmapped by the stacked learner: no threads inside
         shell.device = self.device
         shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
         shell.target_actor = copy.deepcopy(self.target_actor)
@@ -147,11 +165,16 @@ class TD3Learner:
         self, critics: torch.nn.Module, inputs: dict, robots, then: Callable[[dict], torch.Tensor]
     ) -> torch.Tensor:
         """``then`` of both critics' chain outputs on ``inputs``, stacked [2, ...]: one vmapped
-        call of the ensemble (or, ``pair``, the two networks in turn)."""
-        if not self.pair:
+        call of the ensemble, or each member on its own thread (:attr:`twin`); ``pair``: the
+        two networks in turn or on two threads."""
+        if self.pair:
+            chains = self.f_critics if critics is self.critics else self.f_target_critics
+            return torch.stack(self.twin.map(lambda f: then(f(inputs, robots)), chains))
+        if not self.twin.parallel:
             return critics(inputs, robots, then)
-        chains = self.f_critics if critics is self.critics else self.f_target_critics
-        return torch.stack([then(f(inputs, robots)) for f in chains])
+        return torch.stack(
+            self.twin.map(lambda i: critics.one(i, inputs, robots, then), range(critics.size))
+        )
 
     def _robots(self, ids: torch.Tensor):
         critic = self.f_critics[0] if self.pair else self.critics.chain
@@ -171,10 +194,13 @@ class TD3Learner:
         batch: TensorDictBase,
         noise: torch.Tensor | None = None,
         morph_id: torch.Tensor | None = None,
+        backward: bool = False,
     ) -> torch.Tensor:
         """The twin-critic loss on ``batch`` (the sum of the critics' errors). ``noise``: the
         target-smoothing noise (drawn here first when not given, as :func:`target_noise`);
-        ``morph_id``: the samples' robots (read from ``batch`` when not given)."""
+        ``morph_id``: the samples' robots (read from ``batch`` when not given); ``backward``:
+        backpropagate each critic's error where it is computed (on its thread, see
+        :attr:`twin`) and return the loss detached."""
         o = self.config
         ids = batch.get(MORPH_ID) if morph_id is None else morph_id
         robots = self._robots(ids)
@@ -201,9 +227,17 @@ class TD3Learner:
 
             def error(out: dict) -> torch.Tensor:
                 q = out[LIMB_Q]
-                return critic_error(q, _as(target, q.dtype), mask, self.rule)
+                e = critic_error(q, _as(target, q.dtype), mask, self.rule)
+                if backward and self.twin.parallel:
+                    e.backward()
+                    return e.detach()
+                return e
 
-            return _as(self._twin(self.critics, now, robots, error).sum(), action.dtype)
+            loss = _as(self._twin(self.critics, now, robots, error).sum(), action.dtype)
+            if backward and not self.twin.parallel:
+                loss.backward()
+                return loss.detach()
+            return loss
 
     def actor_loss(
         self, batch: TensorDictBase, morph_id: torch.Tensor | None = None
@@ -225,6 +259,7 @@ class TD3Learner:
                     now,
                     robots,
                     lambda out: deterministic_actor_loss(out[LIMB_Q], mask, self.rule),
+                    fixed=True,
                 )
             return _as(loss, now[OBS].dtype)
 
@@ -232,8 +267,7 @@ class TD3Learner:
     # behind (zeroed after the optimiser step, as a captured graph needs).
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update on ``batch``; returns ``loss_critic``."""
-        loss = self.critic_loss(batch)
-        loss.backward()
+        loss = self.critic_loss(batch, backward=True)
         apply_gradients(self.critic_opt, self.critic_params, self.config.max_grad_norm, clip_norm)
         return TensorDict({"loss_critic": loss.detach()})
 
