@@ -65,9 +65,10 @@ def step_operators(learner, batch, device: str) -> dict:
     update (the actor step once every ``policy_delay`` updates). Counted with the twin critics
     in turn: the profiler sees the calling thread only, and the operators are the same on two
     threads."""
-    from gcnt.rl.td3.twin import InTurn
+    from gcnt.rl.td3.twin import EachInTurn, InTurn
 
-    runner, learner.twin = learner.twin, InTurn()
+    runner = learner.twin
+    learner.twin = EachInTurn() if runner.parallel else InTurn()
     try:
         critic = count_launches(lambda: learner.critic_step(batch), device)
         actor = count_launches(lambda: learner.actor_step(batch), device)

@@ -32,7 +32,7 @@ class MaskedNormal(D.Independent):
 
     # the per-slot quantities, masked
     def _masked(self, x: Tensor) -> Tensor:
-        return torch.where(self.mask, x, x.new_zeros(()))
+        return torch.where(self.mask, x, 0.0)
 
     def log_prob(self, value: Tensor) -> Tensor:
         return self._masked(self.base_dist.log_prob(value)).sum((-2, -1))

@@ -24,6 +24,7 @@ from torchrl.modules import ProbabilisticActor
 
 from gcnt import keys as K
 from gcnt.nn.distributions import MaskedNormal
+from gcnt.nn.layers import as_dtype
 from gcnt.nn.masking import limb_mean
 
 ROLES = ("td3_actor", "td3_critic", "ppo_actor", "ppo_critic")
@@ -33,14 +34,14 @@ class TanhAction(nn.Module):
     """Deterministic TD3 action: tanh of the head, zero on torso/padded slots."""
 
     def forward(self, out: Tensor, action_mask: Tensor) -> Tensor:
-        return torch.where(action_mask, torch.tanh(out), out.new_zeros(()))
+        return torch.where(action_mask, torch.tanh(out), 0.0)
 
 
 class LimbValue(nn.Module):
     """Per-limb value (zero on padding) and its mean over the robot's real limbs."""
 
     def forward(self, out: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-        per_limb = torch.where(mask.unsqueeze(-1), out, out.new_zeros(()))
+        per_limb = torch.where(mask.unsqueeze(-1), out, 0.0)
         return per_limb, limb_mean(out, mask)
 
 
@@ -70,11 +71,11 @@ class GaussianParams(nn.Module):
             self.register_buffer("std", torch.tensor(float(init_std)), persistent=False)
 
     def forward(self, out: Tensor, action_mask: Tensor) -> tuple[Tensor, Tensor]:
-        loc = torch.where(action_mask, out, out.new_zeros(()))
+        loc = torch.where(action_mask, out, 0.0)
         if self.std_mode == "learned":
             scale = self.log_std.exp().to(out.dtype).expand_as(out)
         else:
-            scale = self.std.to(out.dtype).expand_as(out)
+            scale = as_dtype(self.std, out.dtype).expand_as(out)
         return loc, scale
 
 

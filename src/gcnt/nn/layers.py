@@ -40,6 +40,12 @@ def mlp(
     return nn.Sequential(*layers)
 
 
+def as_dtype(x: Tensor, dtype: torch.dtype) -> Tensor:
+    """``x`` in ``dtype``: ``x`` itself when it already is (``Tensor.to`` would still dispatch an
+    operator, and a network's forward asks this of tensors that mostly are)."""
+    return x if x.dtype == dtype else x.to(dtype)
+
+
 def last_linear(net: nn.Module) -> nn.Linear:
     """The last ``nn.Linear`` of ``net`` (for output-layer initialisation)."""
     found = [m for m in net.modules() if isinstance(m, nn.Linear)]
@@ -83,9 +89,7 @@ def attention(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor, dropout_p: flo
 
 def key_padding_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
     """Additive attention mask [N, 1, 1, K]: 0 on real keys, -inf on padded ones."""
-    zero = torch.zeros((), dtype=dtype, device=mask.device)
-    neg = torch.full((), float("-inf"), dtype=dtype, device=mask.device)
-    return torch.where(mask, zero, neg)[:, None, None, :]
+    return as_dtype(torch.where(mask[:, None, None, :], 0.0, float("-inf")), dtype)
 
 
 class EncoderLayer(nn.Module):

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import torch
 
+from gcnt.nn.layers import as_dtype
+
 
 def limb_mean(values: torch.Tensor, mask: torch.Tensor, dim: int = -2) -> torch.Tensor:
     """Mean of ``values`` over the True limbs of ``mask`` along the limb dimension ``dim``.
@@ -23,5 +25,5 @@ def limb_mean(values: torch.Tensor, mask: torch.Tensor, dim: int = -2) -> torch.
     while m.dim() < values.dim():
         m = m.unsqueeze(-1)
     m = m.expand_as(values)
-    total = torch.where(m, values, values.new_zeros(())).sum(dim)
-    return total / m.to(values.dtype).sum(dim).clamp_min(1.0)
+    total = torch.where(m, values, 0.0).sum(dim)
+    return total / as_dtype(m, values.dtype).sum(dim).clamp_min(1.0)

@@ -22,6 +22,7 @@ from gcnt.nn.layers import (
     ContextTransformer,
     HyperLinear,
     TransformerEncoder,
+    as_dtype,
     flatten_lead,
     mlp,
     scaled,
@@ -42,7 +43,7 @@ class ActorInput(nn.Module):
     NaN through a zero attention weight)."""
 
     def forward(self, obs: Tensor, mask: Tensor) -> Tensor:
-        return torch.where(mask.unsqueeze(-1), obs, obs.new_zeros(()))
+        return torch.where(mask.unsqueeze(-1), obs, 0.0)
 
 
 class CriticInput(nn.Module):
@@ -50,9 +51,8 @@ class CriticInput(nn.Module):
     torso or padded slots (TD3's target smoothing) never enters the critic."""
 
     def forward(self, obs: Tensor, action: Tensor, mask: Tensor, action_mask: Tensor) -> Tensor:
-        zero = torch.zeros((), dtype=obs.dtype, device=obs.device)
-        action = torch.where(action_mask, action.to(obs.dtype), zero)
-        return torch.where(mask.unsqueeze(-1), torch.cat([obs, action], -1), zero)
+        action = torch.where(action_mask, as_dtype(action, obs.dtype), 0.0)
+        return torch.where(mask.unsqueeze(-1), torch.cat([obs, action], -1), 0.0)
 
 
 def input_stage(critic: bool) -> TensorDictModule:
@@ -168,7 +168,7 @@ class LimbGCN(nn.Module):
         a_hat = self.graph(limbs, adj, mask, "a_hat", h.dtype)
         for layer in self.layers:
             h = layer(h, a_hat)
-        return torch.where(mask.unsqueeze(-1), h, h.new_zeros(()))
+        return torch.where(mask.unsqueeze(-1), h, 0.0)
 
 
 def gcn_stage(num_types: int, width: int, layers: int, context_dim: int = 0) -> TensorDictModule:
@@ -246,10 +246,10 @@ class RelationalBias(nn.Module):
         self.lin = nn.Linear(3, heads)
 
     def forward(self, ppr: Tensor, lap: Tensor, dist: Tensor, mask: Tensor) -> Tensor:
-        ppr, lap = ppr.to(self.lin.weight.dtype), lap.to(self.lin.weight.dtype)
+        ppr, lap = as_dtype(ppr, self.lin.weight.dtype), as_dtype(lap, self.lin.weight.dtype)
         n = mask.sum(-1).clamp_min(1).to(ppr.dtype)[..., None, None]
         pair = mask.unsqueeze(-1) & mask.unsqueeze(-2) & (dist != DIST_PAD)
-        hop = torch.where(pair, dist.to(ppr.dtype) / n, ppr.new_zeros(()))
+        hop = torch.where(pair, as_dtype(dist, ppr.dtype) / n, 0.0)
         feats = torch.stack([ppr, lap, hop], -1)  # [*, K, K, 3]
         return self.lin(feats).movedim(-1, -3).unsqueeze(-4)  # [*, 1, H, K, K]
 
@@ -277,7 +277,7 @@ class LimbTransformer(nn.Module):
         mask, _ = flatten_lead(mask, 1)
         if bias is not None:
             bias, _ = flatten_lead(bias, 4)
-            bias = bias.to(x.dtype)
+            bias = as_dtype(bias, x.dtype)
         return self.encoder(x, mask, bias).reshape(*lead, *x.shape[1:])
 
 
@@ -315,7 +315,7 @@ class ContextLimbTransformer(nn.Module):
         x, lead = flatten_lead(x, 2)
         ctx, _ = flatten_lead(ctx, 2)
         mask, _ = flatten_lead(mask, 1)
-        return self.encoder(x, ctx.to(x.dtype), mask).reshape(*lead, *x.shape[1:])
+        return self.encoder(x, as_dtype(ctx, x.dtype), mask).reshape(*lead, *x.shape[1:])
 
 
 def context_transformer_stage(encoder: ContextTransformer, in_key=K.EMBED) -> TensorDictModule:
@@ -340,7 +340,7 @@ class PositionEmbedding(nn.Module):
 
     def forward(self, embed: Tensor) -> Tensor:
         k = embed.shape[-2]
-        pe = self.pe[:k].to(embed.dtype)
+        pe = as_dtype(self.pe[:k], embed.dtype)
         if k > self.max_limbs:
             pe = torch.cat([pe, pe.new_zeros(k - self.max_limbs, pe.shape[-1])])
         return self.drop(embed + pe)
@@ -380,7 +380,7 @@ class ContextMLP(nn.Module):
         nn.init.uniform_(first.weight, -CONTEXT_EMBED_BOUND, CONTEXT_EMBED_BOUND)
 
     def forward(self, ctx: Tensor) -> Tensor:
-        return self.net(ctx.to(self.net[0].weight.dtype))
+        return self.net(as_dtype(ctx, self.net[0].weight.dtype))
 
 
 def context_stage(ctx_dim: int, widths: Sequence[int], out_key) -> TensorDictModule:
@@ -397,7 +397,7 @@ class HyperEncoder(nn.Module):
         self.lin = HyperLinear(hn_dim, in_dim, d_model, weight_bound=0.1)
 
     def forward(self, x: Tensor, h: Tensor) -> Tensor:
-        return scaled(self.lin(x.to(h.dtype), h), self.d_model, self.scale)
+        return scaled(self.lin(as_dtype(x, h.dtype), h), self.d_model, self.scale)
 
 
 def hyper_encoder_stage(hn_dim: int, in_dim: int, d_model: int, scale: bool) -> TensorDictModule:
@@ -417,7 +417,7 @@ class HFieldEncoder(nn.Module):
         self.net = mlp(hfield_dim, (width,), width, final_activation=True)
 
     def forward(self, hfield: Tensor) -> Tensor:
-        return self.net(hfield.to(self.net[0].weight.dtype))
+        return self.net(as_dtype(hfield, self.net[0].weight.dtype))
 
 
 def hfield_stage(hfield_dim: int) -> TensorDictModule:

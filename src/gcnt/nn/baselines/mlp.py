@@ -14,7 +14,7 @@ from torch import Tensor, nn
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import MLPConfig
-from gcnt.nn.layers import mlp
+from gcnt.nn.layers import as_dtype, mlp
 from gcnt.nn.stages import DECODER_HIDDEN
 
 
@@ -37,7 +37,7 @@ class FlatMLP(nn.Module):
             )
         h = self.trunk(x.flatten(-2))
         if hfield is not None:
-            h = torch.cat([h, hfield.to(h.dtype)], -1)
+            h = torch.cat([h, as_dtype(hfield, h.dtype)], -1)
         return self.decoder(h).unflatten(-1, (self.num_limbs, self.out_dim))
 
 

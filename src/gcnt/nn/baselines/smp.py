@@ -38,7 +38,7 @@ from torch import Tensor, nn
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SMPConfig
-from gcnt.nn.layers import flatten_lead, mlp
+from gcnt.nn.layers import as_dtype, flatten_lead, mlp
 
 MSG_UP = ("limbs", "msg_up")
 
@@ -105,7 +105,7 @@ class SMPUp(_Messages):
         child = (parent.unsqueeze(-2) == torch.arange(k, device=x.device).view(1, k, 1)) & (
             mask.unsqueeze(-2)
         )
-        child = child.to(x.dtype)
+        child = as_dtype(child, x.dtype)
         h = self._norm(self.fc1(x))  # the limb's own part: the same at every level
         up = x.new_zeros(n, k, self.msg_dim)
         for lvl in range(levels, -1, -1):
@@ -132,10 +132,10 @@ class SMPDown(_Messages):
         idx = parent.clamp_min(0).unsqueeze(-1).expand(n, k, self.msg_dim)
         down = up.new_zeros(n, k, self.msg_dim)
         for lvl in range(0, levels):  # the deepest level sends no message
-            from_parent = torch.where(has_parent, down.gather(1, idx), down.new_zeros(()))
+            from_parent = torch.where(has_parent, down.gather(1, idx), 0.0)
             new = self._norm(self.msg(torch.tanh(torch.cat([up, from_parent], -1))))
             down = torch.where((depth == lvl).unsqueeze(-1), new, down)
-        from_parent = torch.where(has_parent, down.gather(1, idx), down.new_zeros(()))
+        from_parent = torch.where(has_parent, down.gather(1, idx), 0.0)
         return torch.cat([up, from_parent], -1).reshape(*lead, k, 2 * self.msg_dim)
 
 

@@ -19,6 +19,7 @@ from torch import Tensor, nn
 from gcnt import keys as K
 from gcnt.nn.chain import Backbone, NetIO
 from gcnt.nn.config import SWATConfig
+from gcnt.nn.layers import as_dtype
 from gcnt.nn.stages import (
     encoder_of,
     relational_bias_stage,
@@ -44,7 +45,7 @@ class TraversalEmbedding(nn.Module):
                     f"max_limbs={self.max_limbs} limbs (raise max_limbs)"
                 )
         pe = torch.cat([t(traversal[..., i]) for i, t in enumerate(self.tables)], -1)
-        return embed + pe.to(embed.dtype)
+        return embed + as_dtype(pe, embed.dtype)
 
 
 def swat_backbone(cfg: SWATConfig, io: NetIO, table: TensorDictBase) -> Backbone:

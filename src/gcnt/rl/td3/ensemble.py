@@ -29,7 +29,6 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from gcnt.rl.td3.tensor_chain import RobotBatch, TensorChain, has_dropout
 
-
 #: the attention kernel under vmap: the math one (vmap's batching of the fused kernels takes no
 #: gradient for a learnt additive mask such as GCNT's distance bias)
 VMAP_SDPA = [SDPBackend.MATH]
@@ -101,6 +100,8 @@ class Ensemble(nn.Module):
         stacked = [m._parameters[n] for m, n in self._holders]
         if fixed:
             params = self._fixed_slices(i, stacked)
+        elif self._into_grads(stacked):
+            params = self._leaves(i, stacked)
         else:
             params = [p[i] for p in stacked]
         for (m, n), p in zip(slots, params, strict=True):
@@ -119,6 +120,43 @@ class Ensemble(nn.Module):
             views[i] = (view, TensorChain(view), slots)
         return views[i]
 
+    def prepare_grads(self) -> None:
+        """Give every stacked parameter a zero gradient, before members run on threads: each
+        member's backward then adds into its own slice of it (:meth:`one`), with no select
+        operators and no zero-filled [N, ...] gradient per member and parameter."""
+        for m, n in self._holders:
+            p = m._parameters[n]
+            if p.requires_grad and p.grad is None:
+                p.grad = torch.zeros_like(p)
+
+    def _into_grads(self, stacked: list[Tensor]) -> bool:
+        return (
+            torch.is_grad_enabled()
+            and not torch.compiler.is_compiling()
+            and all(isinstance(p, nn.Parameter) and p.grad is not None for p in stacked)
+        )
+
+    def _leaves(self, i: int, stacked: list[Tensor]) -> list[Tensor]:
+        """Member ``i``'s parameters as leaves of their own: detached slices whose gradient is
+        the stacked gradient's slice (autograd adds into an existing gradient in place), kept
+        while the parameters and their gradients are the same tensors."""
+        cache = self.__dict__.setdefault("_leaf_cache", {})
+        grads = [p.grad for p in stacked]
+        hit = cache.get(i)
+        if (
+            hit is not None
+            and all(a is b for a, b in zip(hit[0], stacked, strict=True))
+            and all(a is b for a, b in zip(hit[1], grads, strict=True))
+        ):
+            return hit[2]
+        leaves = []
+        for p, g in zip(stacked, grads, strict=True):
+            leaf = p.detach()[i].requires_grad_()
+            leaf.grad = g[i]
+            leaves.append(leaf)
+        cache[i] = (stacked, grads, leaves)
+        return leaves
+
     def _fixed_slices(self, i: int, stacked: list[Tensor]) -> list[Tensor]:
         cache = self.__dict__.setdefault("_fixed", {})
         hit = cache.get(i)
@@ -127,9 +165,7 @@ class Ensemble(nn.Module):
         slices = [p.detach()[i] for p in stacked]
         # plain parameters only: a stacked seed's batched slices are new at every call, and a
         # compiled step traces the slicing
-        if not torch.compiler.is_compiling() and all(
-            isinstance(p, nn.Parameter) for p in stacked
-        ):
+        if not torch.compiler.is_compiling() and all(isinstance(p, nn.Parameter) for p in stacked):
             cache[i] = (stacked, slices)
         return slices
 
@@ -137,6 +173,7 @@ class Ensemble(nn.Module):
         state = dict(self.__dict__)
         state.pop("_views", None)
         state.pop("_fixed", None)
+        state.pop("_leaf_cache", None)
         return state
 
     def member(self, i: int) -> nn.Module:

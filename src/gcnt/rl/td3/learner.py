@@ -14,10 +14,12 @@ collected batch to :meth:`TD3.process`):
    TD target (:func:`~gcnt.rl.td3.loss.td_target`; per limb by default, as the AMORPHEUS/SWAT
    code: ``td3.target``);
 4. **critic step** (:meth:`TD3Learner._critic_step`): both critics' errors
-   (:func:`~gcnt.rl.td3.loss.critic_error`) from one call of the critic ensemble
-   (:class:`~gcnt.rl.td3.ensemble.Ensemble`: the two critics' parameters stacked, evaluated
-   under one vmap; the two target critics likewise), one backward, then :func:`apply_gradients`
-   (clip → Adam step → zero_grad; one fused Adam over the stacked parameters);
+   (:func:`~gcnt.rl.td3.loss.critic_error`) from the critic ensemble
+   (:class:`~gcnt.rl.td3.ensemble.Ensemble`: the two critics' parameters stacked; the two
+   target critics likewise), evaluated under one vmap with one backward, or, on a CPU with 2 to
+   4 cores, one member per thread, each with its own backward (:mod:`~gcnt.rl.td3.twin`,
+   ``compile.twin_threads``); then :func:`apply_gradients` (clip → Adam step → zero_grad; one
+   fused Adam over the stacked parameters);
 5. **delayed actor and target step** (:func:`delayed_update`, every ``policy_delay`` critic
    steps, :meth:`TD3Learner._actor_step`): -Q1 of the actor's action
    (:func:`~gcnt.rl.td3.loss.deterministic_actor_loss`), gradients for the actor only,
@@ -172,8 +174,11 @@ class TD3Learner:
             return torch.stack(self.twin.map(lambda f: then(f(inputs, robots)), chains))
         if not self.twin.parallel:
             return critics(inputs, robots, then)
+        fixed = critics is self.target_critics  # no gradient: slices kept between calls
         return torch.stack(
-            self.twin.map(lambda i: critics.one(i, inputs, robots, then), range(critics.size))
+            self.twin.map(
+                lambda i: critics.one(i, inputs, robots, then, fixed=fixed), range(critics.size)
+            )
         )
 
     def _robots(self, ids: torch.Tensor):
@@ -224,6 +229,8 @@ class TD3Learner:
                 )
             now = self._inputs(batch, next_step=False)
             now[ACTION] = action
+            if backward and self.twin.parallel and not self.pair:
+                self.critics.prepare_grads()  # each member's backward adds into its slice
 
             def error(out: dict) -> torch.Tensor:
                 q = out[LIMB_Q]
@@ -268,7 +275,13 @@ class TD3Learner:
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update on ``batch``; returns ``loss_critic``."""
         loss = self.critic_loss(batch, backward=True)
-        apply_gradients(self.critic_opt, self.critic_params, self.config.max_grad_norm, clip_norm)
+        apply_gradients(
+            self.critic_opt,
+            self.critic_params,
+            self.config.max_grad_norm,
+            clip_norm,
+            keep=self.twin.parallel and not self.pair,  # the members' gradient slices
+        )
         return TensorDict({"loss_critic": loss.detach()})
 
     def _actor_step(self, batch: TensorDictBase) -> TensorDictBase:
@@ -392,13 +405,15 @@ def apply_gradients(
     params: Sequence[torch.Tensor],
     max_grad_norm: float,
     clip: Callable[[Sequence[torch.Tensor], float], Any],
+    keep: bool = False,
 ) -> None:
     """The optimiser tail of every TD3 step: ``clip`` the gradients of ``params`` to
-    ``max_grad_norm`` (0: no clipping), step, and leave no gradient behind."""
+    ``max_grad_norm`` (0: no clipping), step, and leave no gradient behind (``keep``: zeroed in
+    place, for gradients that the next step adds into)."""
     if max_grad_norm > 0:
         clip(params, max_grad_norm)
     opt.step()
-    opt.zero_grad(set_to_none=True)
+    opt.zero_grad(set_to_none=not keep)
 
 
 def soft_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import torch
 
+from gcnt.nn.layers import as_dtype
 from gcnt.nn.masking import limb_mean
 
 
@@ -62,7 +63,7 @@ TARGET_RULES = ("limb", "robot_mean", "robot_sum")
 def _robot_sum(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Sum over real limbs of per-limb ``values`` [*B, K, 1] -> [*B, 1]."""
     m = mask.unsqueeze(-1)
-    return torch.where(m, values, values.new_zeros(())).sum(-2)
+    return torch.where(m, values, 0.0).sum(-2)
 
 
 def td_target(
@@ -91,7 +92,7 @@ def td_target(
     else:
         raise ValueError(f"unknown TD target rule {rule!r} (known: {', '.join(TARGET_RULES)})")
     not_term = (~terminated.bool()).to(v_next.dtype)
-    return reward.to(v_next.dtype) + gamma * not_term * v_next
+    return as_dtype(reward, v_next.dtype) + gamma * not_term * v_next
 
 
 def critic_error(

@@ -35,6 +35,7 @@ from torch.nn.attention import sdpa_kernel
 from gcnt.keys import ACTION, MORPH_ID
 from gcnt.rl.accelerate import accelerate, optimizer_kwargs
 from gcnt.rl.run_dir import rng_state, set_rng_state
+from gcnt.rl.td3.ensemble import VMAP_SDPA
 from gcnt.rl.td3.learner import (
     TD3,
     TD3Learner,
@@ -43,7 +44,6 @@ from gcnt.rl.td3.learner import (
     loss_rows,
     soft_update,
 )
-from gcnt.rl.td3.ensemble import VMAP_SDPA
 from gcnt.rl.td3.loss import target_noise
 from gcnt.rl.td3.tensor_chain import has_dropout
 
