@@ -66,4 +66,19 @@ def test_the_ensemble_update_dispatches_fewer_operators_than_two_critics(recipe_
     assert one["critic_step"] < 0.75 * old["critic_step"]
     assert one["per_update"] < old["per_update"]
     assert new["per_update"] <= old["per_update"]
+    assert one["working_per_update"] < 0.8 * old["working_per_update"]
+    assert 0 < new["working_per_update"] < new["per_update"]
     assert out["ratio_to_previous"] > 0 and out["one_call"]["update_ms"] > 0
+
+
+def test_working_operators_leave_out_views_but_not_copies():
+    """count_operators: a view or a same-dtype ``to`` dispatches without writing data; a
+    reshape that has to copy, a cast and arithmetic write data."""
+    import torch
+
+    from gcnt.bench.common import count_operators
+
+    x = torch.ones(4, 6)
+    assert count_operators(lambda: x.view(6, 4).t().unsqueeze(0).to(torch.float32)) == (4, 0)
+    assert count_operators(lambda: x.t().reshape(24)) == (2, 1)  # strided: reshape copies
+    assert count_operators(lambda: x.to(torch.float64) + 1) == (2, 2)

@@ -121,6 +121,20 @@ def count_launches(fn, device: str = "cpu") -> int:
     device); on a CPU, the operators it dispatches (profiled ``aten::`` ops not called from
     inside another). Each costs a few microseconds whatever its size, so ``count x a few us``
     is the update's launch floor."""
+    return count_operators(fn, device)[0]
+
+
+#: operators that only describe a tensor (no data written) beyond those whose schema says they
+#: return a view of an input
+_NO_WORK = frozenset({"detach", "t", "empty", "empty_strided", "new_empty_strided", "to"})
+_COPIES = frozenset({"aten::copy_", "aten::clone", "aten::_to_copy"})
+
+
+def count_operators(fn, device: str = "cpu") -> tuple[int, int]:
+    """``(dispatched, working)`` for ``fn()``: on a GPU both are the device kernels it launches;
+    on a CPU the operators it dispatches (:func:`count_launches`), and of them those that write
+    data (a GPU's kernels): not views of their input (the operator's schema), unless they copied
+    (a ``reshape`` of strided data, a ``to`` that cast)."""
     import torch
     from torch.autograd import DeviceType
     from torch.profiler import ProfilerActivity, profile
@@ -134,7 +148,8 @@ def count_launches(fn, device: str = "cpu") -> int:
                 torch.cuda.synchronize(device)
         events = prof.events()
     if cuda:
-        return sum(1 for e in events if e.device_type == DeviceType.CUDA)
+        kernels = sum(1 for e in events if e.device_type == DeviceType.CUDA)
+        return kernels, kernels
 
     def nested(e) -> bool:
         parent = e.cpu_parent
@@ -144,7 +159,32 @@ def count_launches(fn, device: str = "cpu") -> int:
             parent = parent.cpu_parent
         return False
 
-    return sum(1 for e in events if e.name.startswith("aten::") and not nested(e))
+    def copied(e) -> bool:
+        todo = list(e.cpu_children)
+        while todo:
+            child = todo.pop()
+            if child.name in _COPIES:
+                return True
+            todo.extend(child.cpu_children)
+        return False
+
+    top = [e for e in events if e.name.startswith("aten::") and not nested(e)]
+    working = sum(1 for e in top if not _is_view(e.name[len("aten::") :]) or copied(e))
+    return len(top), working
+
+
+def _is_view(name: str) -> bool:
+    if name in _NO_WORK:
+        return True
+    import torch
+
+    op = getattr(torch.ops.aten, name, None)
+    if op is None:
+        return False
+    schema = getattr(op, op.overloads()[0])._schema
+    return bool(schema.returns) and all(
+        r.alias_info is not None and not r.alias_info.is_write for r in schema.returns
+    )
 
 
 def arithmetic(flops_per_update: float, updates_per_s: float, peak: float) -> dict:

@@ -36,7 +36,7 @@ from gcnt.bench.common import (
     arithmetic,
     arithmetic_line,
     count_flops,
-    count_launches,
+    count_operators,
     device_line,
     launch_line,
     matmul_peak_gflops,
@@ -70,14 +70,17 @@ def step_operators(learner, batch, device: str) -> dict:
     runner = learner.twin
     learner.twin = EachInTurn() if runner.parallel else InTurn()
     try:
-        critic = count_launches(lambda: learner.critic_step(batch), device)
-        actor = count_launches(lambda: learner.actor_step(batch), device)
+        critic, critic_work = count_operators(lambda: learner.critic_step(batch), device)
+        actor, actor_work = count_operators(lambda: learner.actor_step(batch), device)
     finally:
         learner.twin = runner
+    delay = learner.config.policy_delay
     return {
         "critic_step": critic,
         "actor_step": actor,
-        "per_update": critic + actor / learner.config.policy_delay,
+        "per_update": critic + actor / delay,
+        # of them, the operators that write data (a GPU's kernels; the rest are views)
+        "working_per_update": critic_work + actor_work / delay,
     }
 
 
@@ -343,6 +346,12 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             f"previous (two critic networks) {prev['critic_step']:,} / {prev['actor_step']:,}: "
             f"{prev['per_update']:,.0f}"
         )
+        if what == "operators":
+            print(
+                f"       of them writing data (a GPU's kernels; the rest are views): "
+                f"{ops['working_per_update']:,.0f} per update, previous "
+                f"{prev['working_per_update']:,.0f}"
+            )
         how = "members on two threads" if row["twin_threads"] else "members in one call"
         print(
             f"       critic ensemble, {how}; previous update (two critic networks) "
@@ -353,7 +362,8 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         if one:
             print(
                 f"       the ensemble in one vmapped call (a GPU's path): {one['update_ms']:.1f} "
-                f"ms, {one['operators']['per_update']:,.0f} {what} per update"
+                f"ms, {one['operators']['per_update']:,.0f} {what} per update "
+                f"({one['operators']['working_per_update']:,.0f} writing data)"
             )
         print(arithmetic_line(row["arithmetic"], peak))
         print(launch_line(row["launches_per_update"], row["bare_update_ms"], recipe.device))

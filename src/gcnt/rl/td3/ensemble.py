@@ -89,24 +89,42 @@ class Ensemble(nn.Module):
         robots: RobotBatch,
         then: Callable[[dict], Tensor],
         fixed: bool = False,
+        backward: bool = False,
     ) -> Tensor:
         """``then`` of member ``i``'s chain output alone (no vmap): its slice of every stacked
         parameter in a structural copy of the network kept for that member (sharing the
         network's buffers), so that two members can run at once on two threads. ``fixed``: the
         member is a constant function of its inputs (TD3's actor loss reads critic 1 and trains
         the actor only): its slices are detached, and kept from call to call while the stacked
-        parameters are the same tensors (updated in place by the optimiser)."""
+        parameters are the same tensors (updated in place by the optimiser). ``backward``:
+        backpropagate ``then``'s (scalar) result here, into member ``i``'s slice of the stacked
+        gradient (:meth:`prepare_grads` first), and return it detached."""
         view, chain, slots = self._view(i)
         stacked = [m._parameters[n] for m, n in self._holders]
+        leaves = None
         if fixed:
             params = self._fixed_slices(i, stacked)
-        elif self._into_grads(stacked):
-            params = self._leaves(i, stacked)
+        elif backward and self._into_grads(stacked):
+            leaves, grad_slices = self._leaves(i, stacked)
+            params = leaves
         else:
             params = [p[i] for p in stacked]
         for (m, n), p in zip(slots, params, strict=True):
             m._parameters[n] = p
-        return then(chain(inputs, robots))
+        out = then(chain(inputs, robots))
+        if not backward:
+            return out
+        out.backward()
+        if leaves is not None:
+            done = [
+                (s, leaf.grad)
+                for s, leaf in zip(grad_slices, leaves, strict=True)
+                if leaf.grad is not None
+            ]
+            torch._foreach_copy_([s for s, _ in done], [g for _, g in done])
+            for leaf in leaves:
+                leaf.grad = None
+        return out.detach()
 
     def _view(self, i: int) -> tuple[nn.Module, TensorChain, list]:
         views = self.__dict__.get("_views")
@@ -121,9 +139,10 @@ class Ensemble(nn.Module):
         return views[i]
 
     def prepare_grads(self) -> None:
-        """Give every stacked parameter a zero gradient, before members run on threads: each
-        member's backward then adds into its own slice of it (:meth:`one`), with no select
-        operators and no zero-filled [N, ...] gradient per member and parameter."""
+        """Give every stacked parameter a zero gradient before members backpropagate on threads
+        (:meth:`one` with ``backward``): each member's gradients are then copied into its own
+        slice of it, in one operator, with no select operators and no zero-filled [N, ...]
+        gradient per member and parameter. Zero it in place after the optimiser step."""
         for m, n in self._holders:
             p = m._parameters[n]
             if p.requires_grad and p.grad is None:
@@ -136,10 +155,10 @@ class Ensemble(nn.Module):
             and all(isinstance(p, nn.Parameter) and p.grad is not None for p in stacked)
         )
 
-    def _leaves(self, i: int, stacked: list[Tensor]) -> list[Tensor]:
-        """Member ``i``'s parameters as leaves of their own: detached slices whose gradient is
-        the stacked gradient's slice (autograd adds into an existing gradient in place), kept
-        while the parameters and their gradients are the same tensors."""
+    def _leaves(self, i: int, stacked: list[Tensor]) -> tuple[list[Tensor], list[Tensor]]:
+        """Member ``i``'s parameters as leaves of their own (detached slices that take a
+        gradient), and its slices of the stacked gradients; kept while the parameters and their
+        gradients are the same tensors."""
         cache = self.__dict__.setdefault("_leaf_cache", {})
         grads = [p.grad for p in stacked]
         hit = cache.get(i)
@@ -148,14 +167,11 @@ class Ensemble(nn.Module):
             and all(a is b for a, b in zip(hit[0], stacked, strict=True))
             and all(a is b for a, b in zip(hit[1], grads, strict=True))
         ):
-            return hit[2]
-        leaves = []
-        for p, g in zip(stacked, grads, strict=True):
-            leaf = p.detach()[i].requires_grad_()
-            leaf.grad = g[i]
-            leaves.append(leaf)
-        cache[i] = (stacked, grads, leaves)
-        return leaves
+            return hit[2], hit[3]
+        leaves = [p.detach()[i].requires_grad_() for p in stacked]
+        slices = [g[i] for g in grads]
+        cache[i] = (stacked, grads, leaves, slices)
+        return leaves, slices
 
     def _fixed_slices(self, i: int, stacked: list[Tensor]) -> list[Tensor]:
         cache = self.__dict__.setdefault("_fixed", {})

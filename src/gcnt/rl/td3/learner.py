@@ -164,20 +164,34 @@ class TD3Learner:
         return shell
 
     def _twin(
-        self, critics: torch.nn.Module, inputs: dict, robots, then: Callable[[dict], torch.Tensor]
+        self,
+        critics: torch.nn.Module,
+        inputs: dict,
+        robots,
+        then: Callable[[dict], torch.Tensor],
+        backward: bool = False,
     ) -> torch.Tensor:
         """``then`` of both critics' chain outputs on ``inputs``, stacked [2, ...]: one vmapped
         call of the ensemble, or each member on its own thread (:attr:`twin`); ``pair``: the
-        two networks in turn or on two threads."""
+        two networks in turn or on two threads. ``backward`` (with threads): each critic's
+        result backpropagated on its thread, and returned detached."""
+
+        def each(out: torch.Tensor) -> torch.Tensor:
+            if not backward:
+                return out
+            out.backward()
+            return out.detach()
+
         if self.pair:
             chains = self.f_critics if critics is self.critics else self.f_target_critics
-            return torch.stack(self.twin.map(lambda f: then(f(inputs, robots)), chains))
+            return torch.stack(self.twin.map(lambda f: each(then(f(inputs, robots))), chains))
         if not self.twin.parallel:
             return critics(inputs, robots, then)
         fixed = critics is self.target_critics  # no gradient: slices kept between calls
         return torch.stack(
             self.twin.map(
-                lambda i: critics.one(i, inputs, robots, then, fixed=fixed), range(critics.size)
+                lambda i: critics.one(i, inputs, robots, then, fixed=fixed, backward=backward),
+                range(critics.size),
             )
         )
 
@@ -229,19 +243,18 @@ class TD3Learner:
                 )
             now = self._inputs(batch, next_step=False)
             now[ACTION] = action
-            if backward and self.twin.parallel and not self.pair:
-                self.critics.prepare_grads()  # each member's backward adds into its slice
+            each = backward and self.twin.parallel  # each critic's backward on its thread
+            if each and not self.pair:
+                self.critics.prepare_grads()  # each member's gradients go into its slice
 
             def error(out: dict) -> torch.Tensor:
                 q = out[LIMB_Q]
-                e = critic_error(q, _as(target, q.dtype), mask, self.rule)
-                if backward and self.twin.parallel:
-                    e.backward()
-                    return e.detach()
-                return e
+                return critic_error(q, _as(target, q.dtype), mask, self.rule)
 
-            loss = _as(self._twin(self.critics, now, robots, error).sum(), action.dtype)
-            if backward and not self.twin.parallel:
+            loss = _as(
+                self._twin(self.critics, now, robots, error, backward=each).sum(), action.dtype
+            )
+            if backward and not each:
                 loss.backward()
                 return loss.detach()
             return loss
