@@ -291,3 +291,39 @@ def test_twin_threads_work_in_a_forked_child():
     assert out.get(timeout=60) == [3, 4]
     child.join(timeout=60)
     assert child.exitcode == 0
+
+
+def test_a_critic_that_vmap_cannot_run_is_one_line_naming_the_method(monkeypatch, tmp_path, capsys):
+    """A network that reads a tensor's value in Python works as two networks or on threads, but
+    not as the ensemble in one vmapped call (a GPU's path): the first update says so in one
+    line, naming the method and the switch, and ``gcnt train`` exits 2."""
+    from cli_helpers import error_line, tiny_td3_recipe
+
+    from gcnt.nn import stages
+    from gcnt.rl.td3.ensemble import VmapError
+
+    encode = stages.LimbEncoder.forward
+
+    def reading(self, x):
+        y = encode(self, x)
+        if y.abs().sum().item() < 0:  # a Python branch on a value the weights make
+            y = -y
+        return y
+
+    monkeypatch.setattr(stages.LimbEncoder, "forward", reading)
+    recipe, _, batch = _double_learner()
+    env = make_env(recipe, train_robots(recipe))
+    threads = TD3Learner(recipe, env, twin_threads=True)
+    one_call = TD3Learner(recipe, env, twin_threads=False)
+    env.close()
+    batch = batch.apply(lambda t: t.float() if t.is_floating_point() else t)
+    assert set(threads.update(batch)) == {"loss_critic"}
+    with pytest.raises(VmapError, match=r"^gcnt: its forward cannot run under torch\.vmap"):
+        one_call.update(batch)
+
+    path = tiny_td3_recipe(tmp_path / "tiny.yaml")
+    run = tmp_path / "run"
+    line = error_line(capsys, ["train", str(path), "compile.twin_threads=false", f"run_dir={run}"])
+    assert "gcnt: its forward cannot run under torch.vmap" in line
+    assert "compile.twin_threads=true" in line
+    assert not run.exists()  # the run failed before it logged anything: nothing left behind

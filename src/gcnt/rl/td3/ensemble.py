@@ -27,11 +27,16 @@ import torch
 from torch import Tensor, nn
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
+from gcnt.recipes import RecipeError
 from gcnt.rl.td3.tensor_chain import RobotBatch, TensorChain, has_dropout
 
 #: the attention kernel under vmap: the math one (vmap's batching of the fused kernels takes no
 #: gradient for a learnt additive mask such as GCNT's distance bias)
 VMAP_SDPA = [SDPBackend.MATH]
+
+
+class VmapError(RecipeError):
+    """A network that cannot be evaluated under ``torch.vmap`` (one line, exit 2)."""
 
 
 class Ensemble(nn.Module):
@@ -42,8 +47,9 @@ class Ensemble(nn.Module):
     stacked [N, ...] (members in the order given).
     """
 
-    def __init__(self, members: Sequence[nn.Module]) -> None:
+    def __init__(self, members: Sequence[nn.Module], name: str = "network") -> None:
         super().__init__()
+        self.name = name
         if len(members) < 1:
             raise ValueError("Ensemble needs at least one member")
         self.size = len(members)
@@ -79,8 +85,19 @@ class Ensemble(nn.Module):
                 for (m, n), p in zip(slots, stacked, strict=True):
                     m._parameters[n] = p
 
-        with sdpa_kernel(VMAP_SDPA):
-            return torch.vmap(member, randomness=self._randomness)(stacked)
+        try:
+            with sdpa_kernel(VMAP_SDPA):
+                return torch.vmap(member, randomness=self._randomness)(stacked)
+        except RuntimeError as e:
+            if not str(e).startswith("vmap:"):
+                raise
+            raise VmapError(
+                f"{self.name}: its forward cannot run under torch.vmap, which evaluates TD3's "
+                "twin critics as one ensemble (on a GPU, compiled, or with "
+                f"compile.twin_threads=false): {str(e).split('. ')[0]}. Read no tensor's value "
+                "in Python in the forward (.item(), int(), an if on a tensor), or on a CPU with "
+                "2 to 4 cores run its members on threads (compile.twin_threads=true)"
+            ) from None
 
     def one(
         self,

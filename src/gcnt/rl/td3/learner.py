@@ -114,7 +114,9 @@ class TD3Learner:
         # ensemble (``pair``: as two networks run in turn, the previous layout, kept to compare)
         critics = [make_net(recipe, env, "td3_critic") for _ in range(2)]
         self.pair = pair
-        self.critics = torch.nn.ModuleList(critics) if pair else Ensemble(critics)
+        self.critics = (
+            torch.nn.ModuleList(critics) if pair else Ensemble(critics, recipe.network.name)
+        )
         self.target_actor = copy.deepcopy(self.actor).requires_grad_(False)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self._chains()
