@@ -92,7 +92,9 @@ def test_packaged_recipes_by_name_from_any_folder(tmp_path, monkeypatch):
         assert find_recipe(spec) == walker
     assert "quickstart" in packaged_recipe_names() and "smpenv/_td3" not in packaged_recipe_names()
     assert load_recipe("quickstart").task == load_recipe(ROOT / "recipes/quickstart.yaml").task
-    (tmp_path / "quickstart.yaml").write_text("seed: 3\nbase: " + str(ROOT / "recipes/quickstart.yaml"))
+    (tmp_path / "quickstart.yaml").write_text(
+        "seed: 3\nbase: " + str(ROOT / "recipes/quickstart.yaml")
+    )
     assert find_recipe("quickstart.yaml") == Path("quickstart.yaml")  # a file of the user's wins
     with pytest.raises(RecipeError, match="did you mean 'smpenv/walker'"):
         find_recipe("smpenv/walkr")

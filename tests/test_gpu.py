@@ -62,9 +62,7 @@ GRAPHED = {"cudagraphs", "compile+cudagraphs", "policy_cudagraphs"}
 
 def cases(*axes, subset) -> list:
     """Every combination of ``axes``; those outside ``subset`` marked gpu_matrix."""
-    return [
-        pytest.param(*c, marks=() if subset(*c) else MATRIX) for c in itertools.product(*axes)
-    ]
+    return [pytest.param(*c, marks=() if subset(*c) else MATRIX) for c in itertools.product(*axes)]
 
 
 def _all_cpu(path) -> bool:
@@ -226,10 +224,20 @@ def test_a_cpu_run_resumes_on_cuda_with_cuda_graphs(capsys, tmp_path, schedule):
     state captured in CUDA graphs."""
     recipe = tiny_td3_recipe(tmp_path / "tiny.yaml")
     run = tmp_path / "run"
-    assert gcnt(["train", str(recipe), "device=cpu", f"run_dir={run}", f"td3.schedule={schedule}"]) == 0
+    assert (
+        gcnt(["train", str(recipe), "device=cpu", f"run_dir={run}", f"td3.schedule={schedule}"])
+        == 0
+    )
     graphs = ["compile.cudagraphs=true", "compile.replay_on_device=true"]
     with Replays() as replays:
-        resume = ["train", "--resume", str(run), "device=cuda", *graphs, "collector.total_frames=80"]
+        resume = [
+            "train",
+            "--resume",
+            str(run),
+            "device=cuda",
+            *graphs,
+            "collector.total_frames=80",
+        ]
         assert gcnt(resume) == 0, capsys.readouterr().err
     replays.check(True)
     assert _all_cpu(run / "checkpoints" / "last.pt")

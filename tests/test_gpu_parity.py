@@ -129,8 +129,11 @@ def test_graphed_stacked_td3_steps_make_the_eager_updates(method):
             assert _close(out[False][k], out[True][k]), (i, k, out[False][k], out[True][k])
     for g in runs.values():
         g.push()
-    names = [f"{role}.{n}" for role in ("actor", "critics") for n, _ in
-             getattr(runs[False].learners[0], role).named_parameters()]
+    names = [
+        f"{role}.{n}"
+        for role in ("actor", "critics")
+        for n, _ in getattr(runs[False].learners[0], role).named_parameters()
+    ]
     for a, b in zip(runs[False].learners, runs[True].learners, strict=True):
         for name, p, q in zip(names, a._online, b._online, strict=True):
             assert _close(p, q), (name, (p - q).abs().max(), p.grad)

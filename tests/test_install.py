@@ -79,7 +79,11 @@ def test_a_wheel_runs_robots_train_and_eval_outside_the_checkout(tmp_path):
 
     where = subprocess.run(
         [bin_ / "python", "-c", "import gcnt; print(gcnt.__file__)"],
-        cwd=work, env=env, capture_output=True, text=True, check=True,
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout
     assert where.startswith(str(tmp_path / "venv")), where  # the wheel's gcnt, not the checkout's
     assert gcnt_("--version").strip() == f"gcnt {gcnt.__version__}"

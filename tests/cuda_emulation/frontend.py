@@ -109,7 +109,9 @@ def _deepcopy(func, args, kwargs):
 
 def _pin_memory(func, args, kwargs):
     if on_gpu(args[0]):
-        raise EmulationError("cannot pin 'torch.cuda.FloatTensor' only dense CPU tensors can be pinned")
+        raise EmulationError(
+            "cannot pin 'torch.cuda.FloatTensor' only dense CPU tensors can be pinned"
+        )
     return args[0]
 
 

@@ -24,8 +24,10 @@ _cuda_rng = {"state": None}
 
 
 def _check_rng_state(new_state) -> None:
-    if not isinstance(new_state, torch.Tensor) or on_gpu(new_state) or (
-        new_state.dtype != torch.uint8
+    if (
+        not isinstance(new_state, torch.Tensor)
+        or on_gpu(new_state)
+        or (new_state.dtype != torch.uint8)
     ):
         raise TypeError("RNG state must be a torch.ByteTensor")
 
@@ -187,4 +189,3 @@ def entry_points() -> list[tuple[object, str, object]]:
     ]
     # fmt: on
     return repl
-

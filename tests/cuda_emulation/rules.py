@@ -43,9 +43,7 @@ def _mixing(what: str, a: torch.Tensor, b: torch.Tensor) -> EmulationError:
 
 
 def _capture_error(what: str) -> EmulationError:
-    return EmulationError(
-        f"CUDA error: operation not permitted when stream is capturing ({what})"
-    )
+    return EmulationError(f"CUDA error: operation not permitted when stream is capturing ({what})")
 
 
 def _check_group(func, tensors: list[torch.Tensor], strict: bool) -> bool:
@@ -115,8 +113,7 @@ class DeviceRules(TorchDispatchMode):
         single = [a for a in (*args, *kwargs.values()) if isinstance(a, torch.Tensor)]
         n = len(lists[0]) if lists else 0
         gpu = [
-            _check_group(func, [lst[i] for lst in lists] + single, strict=False)
-            for i in range(n)
+            _check_group(func, [lst[i] for lst in lists] + single, strict=False) for i in range(n)
         ]
         cap = state.capture[0]
         inputs = [t for lst in lists for t in lst] + single
@@ -152,11 +149,7 @@ class DeviceRules(TorchDispatchMode):
             raise _capture_error(f"{func} draws from a generator other than the default CUDA one")
         # a host scalar made before the capture may change after it; the graph keeps its value
         cap = state.capture[0]
-        scalars = [
-            t
-            for t in inputs
-            if not on_gpu(t) and t.dim() == 0 and _made_before(t, cap)
-        ]
+        scalars = [t for t in inputs if not on_gpu(t) and t.dim() == 0 and _made_before(t, cap)]
         if scalars and packet not in CROSSING:
             warnings.warn(
                 f"a captured kernel ({func}) reads a CPU scalar: its value at capture is frozen "
