@@ -9,6 +9,11 @@ runs once for all members (one forward, one backward), and one optimiser, one gr
 one soft update act on N times fewer, larger tensors. The robot table (the chain's buffers) is
 not stacked: every member reads the same one.
 
+:meth:`Ensemble.one` runs one member alone, without vmap, in a structural copy of the network
+kept for that member: TD3 runs its two members that way on two threads on a CPU with a few cores
+(where vmap's batched layers cost more arithmetic than two plain networks), each backpropagating
+into its own slice of the stacked gradient, and reads critic 1 that way for the actor loss.
+
 Seeds stacked on top (:mod:`gcnt.rl.td3.stacked`) swap [N, ...] slices of their [S, N, ...]
 leaves into the same module: the call reads whichever tensors are in place, so the members' vmap
 runs inside the seeds' one.
@@ -115,7 +120,8 @@ class Ensemble(nn.Module):
         the actor only): its slices are detached, and kept from call to call while the stacked
         parameters are the same tensors (updated in place by the optimiser). ``backward``:
         backpropagate ``then``'s (scalar) result here, into member ``i``'s slice of the stacked
-        gradient (:meth:`prepare_grads` first), and return it detached."""
+        gradient (:meth:`prepare_grads` first; the slice is replaced, once per optimiser step),
+        and return it detached."""
         view, chain, slots = self._view(i)
         stacked = [m._parameters[n] for m, n in self._holders]
         leaves = None
