@@ -372,9 +372,11 @@ class TD3Learner:
 def one_update_thread(recipe: Recipe) -> bool:
     """Whether a run's TD3 update takes 1 torch intra-op thread instead of torch's default (one
     per core): an eager update on a CPU with 2 to 4 usable cores and ``compile.torch_threads``
-    unset. Its kernels are too small to split across threads, and on a machine shared with
-    other jobs each kernel's parallel region waits for a thread another job has taken (the
-    quick start's update 2.5x slower on 2 threads than on 1 beside other jobs on 2 cores)."""
+    unset. On an idle machine two threads can be faster (the quick start's one-call ensemble:
+    17.7 against 25 ms per update on a 2-core Xeon), but on a machine shared with other jobs each
+    kernel's parallel region waits for a thread another job has taken (106 against 26 ms beside
+    a busy loop), and one or two threads round differently, so the thread count is not chosen by
+    the machine's load: a seeded run repeats whatever else runs."""
     return (
         torch.device(recipe.device).type == "cpu"
         and recipe.compile.torch_threads is None
