@@ -5,9 +5,12 @@ built on them are in ``conftest.py``."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import subprocess
+import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from gcnt.cli import main as gcnt
@@ -83,3 +86,29 @@ def wait_for_metrics(paths: list[Path], proc: subprocess.Popen, timeout: float =
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() - t0 < timeout, "training did not start"
         time.sleep(0.2)
+
+
+@contextlib.contextmanager
+def holding(lock: str, path: Path) -> Iterator[subprocess.Popen]:
+    """Another process holding ``lock`` (``"module:function"``, a context manager taking a path)
+    on ``path`` while the block runs: it has the lock when the block starts and lets go when its
+    stdin closes at the end (a killed one, at once), so no stand-in outlives the test by a fixed
+    sleep."""
+    module, name = lock.split(":")
+    code = (
+        f"import sys; from pathlib import Path; from {module} import {name}\n"
+        f"with {name}(Path(sys.argv[1])):\n"
+        "    print('held', flush=True); sys.stdin.read()\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == "held\n"
+        yield proc
+    finally:
+        proc.communicate("", timeout=60)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
+from torch.utils._pytree import tree_leaves
 
 from gcnt.rl.device import OnDevice, on_device
 from gcnt.rl.loop import _all_finite
@@ -58,14 +59,5 @@ def test_checkpoint_tensors_are_detached_cpu_tensors(trained):
     assert not out.requires_grad and out.data_ptr() == w.data_ptr()  # no copy on a CPU run
     # read as written (no map_location): where a tensor was saved is where it loads
     state = torch.load(RunDir(trained).checkpoint_path, weights_only=True)
-    tensors = []
-    stack = [state]
-    while stack:
-        x = stack.pop()
-        if isinstance(x, torch.Tensor):
-            tensors.append(x)
-        elif isinstance(x, dict):
-            stack.extend(x.values())
-        elif isinstance(x, (list, tuple)):
-            stack.extend(x)
+    tensors = [x for x in tree_leaves(state) if isinstance(x, torch.Tensor)]
     assert tensors and all(t.device.type == "cpu" and not t.requires_grad for t in tensors)

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_helpers import wait_for_metrics
+from cli_helpers import holding, wait_for_metrics
 
 from gcnt.cli import main as gcnt
 from gcnt.rl.run_dir import RunDir
@@ -38,38 +38,15 @@ eval: {{episodes: 1, interval: 0}}
 checkpoint_interval: 1000000
 """
 
-# holds the lock until its stdin closes (the test kills it first; a failed test's end closes
-# the pipe), so no stand-in outlives the test by a fixed sleep
-HOLD = """
-import sys
-from gcnt.rl.run_lock import run_lock
-with run_lock(sys.argv[1]):
-    print("held", flush=True)
-    sys.stdin.read()
-"""
-
-
-def _holding_process(run: Path) -> subprocess.Popen:
-    proc = subprocess.Popen(
-        [sys.executable, "-c", HOLD, str(run)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
-    return proc
-
 
 def test_a_second_writer_is_refused_and_a_dead_holder_leaves_no_lock(tmp_path: Path) -> None:
     run = tmp_path / "run"
-    proc = _holding_process(run)
-    try:
+    with holding("gcnt.rl.run_lock:run_lock", run) as proc:
         who = holder(run)
         assert who is not None and who.pid == proc.pid and who.host == socket.gethostname()
         with pytest.raises(RunBusyError, match=rf"{run} is being trained by process {proc.pid} on"):
             with run_lock(run):
                 pass
-    finally:
         proc.kill()  # no clean-up code runs: the kernel drops the lock
         proc.wait()
     assert holder(run) is None

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from cli_helpers import holding
 
 from gcnt.cli import main as gcnt
 from gcnt.keys import ACTION
@@ -241,30 +242,11 @@ def test_bad_seed_input_fails_in_one_line(args, message, tmp_path, capsys):
 def test_a_refused_start_of_seeds_leaves_no_directory(tmp_path, capsys):
     """A seed whose directory is trained by another process, or already holds a run: refused in
     one line, and the other seeds' directories are not left behind holding only a lock."""
-    import os
-    import subprocess
-    import sys
-
     busy = tmp_path / "seed1"
-    hold = (
-        "import sys; from gcnt.rl.run_lock import run_lock\n"
-        "with run_lock(sys.argv[1]):\n"
-        "    print('held', flush=True); sys.stdin.read()\n"
-    )
-    holder = subprocess.Popen(
-        [sys.executable, "-c", hold, str(busy)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
-    )
-    try:
-        assert holder.stdout.readline() == "held\n"
+    with holding("gcnt.rl.run_lock:run_lock", busy):
         assert gcnt(["train", str(QUICK), *TINY, f"run_dir={tmp_path}", "--seeds", "0,1"]) == 2
         assert "is being trained by" in capsys.readouterr().err
         assert sorted(p.name for p in tmp_path.iterdir()) == ["seed1"]
-    finally:
-        holder.communicate("", timeout=60)
     (busy / "recipe.yaml").write_text(QUICK.read_text())  # a run there: refused up front
     assert gcnt(["train", str(QUICK), *TINY, f"run_dir={tmp_path}", "--seeds", "0,1"]) == 2
     assert "already holds a run" in capsys.readouterr().err

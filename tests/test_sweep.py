@@ -305,7 +305,7 @@ def stop(*_):
     sys.exit(75)
 signal.signal(signal.SIGTERM, stop)
 (here / "started").write_text(str(os.getpid()))
-time.sleep(300)
+signal.pause()  # until the SIGTERM
 """
 
 _DRIVER = """

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cli_helpers import ROOT, error_line
+from cli_helpers import ROOT, error_line, holding
 from tensordict import TensorDict
 
 from gcnt.cli import main as gcnt
@@ -202,36 +202,20 @@ def test_a_second_import_into_one_folder_waits_its_turn(unimals, morph, tmp_path
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     stale = morph / ".Old.importing-999999999"  # no such process
     (stale / "train").mkdir(parents=True)
-    hold = (
-        "import sys, time; from pathlib import Path\n"
-        "from gcnt.morphology.unimal.imported import _import_lock\n"
-        "with _import_lock(Path(sys.argv[1])):\n"
-        "    print('held', flush=True); sys.stdin.read()\n"
-    )
-    holder = subprocess.Popen(
-        [sys.executable, "-c", hold, str(morph)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    try:
-        assert holder.stdout.readline() == "held\n"
+    with holding("gcnt.morphology.unimal.imported:_import_lock", morph) as holder:
         line = error_line(capsys, ["import-unimal", str(unimals)])
         assert f"{morph}: another gcnt import-unimal (process {holder.pid})" in line, line
-    finally:
-        holder.communicate("", timeout=60)
     assert stale.exists() and not (morph / "Unimal100").exists()
     assert gcnt(["import-unimal", str(unimals)]) == 0
     assert not stale.exists()
 
     # SIGTERM while the files are checked: a one-line end, nothing left behind
     code = (
-        "import sys, time\n"
+        "import signal, sys\n"
         "import gcnt.morphology.unimal.imported as m\n"
         "check = m.check_member\n"
         "def slow(member):\n"
-        "    print('checking', flush=True); time.sleep(30)\n"
+        "    print('checking', flush=True); signal.pause()  # until SIGTERM\n"
         "m.check_member = slow\n"
         "from gcnt.cli import main\n"
         "sys.exit(main(['import-unimal', sys.argv[1], '--name', 'Other', '--out', sys.argv[2]]))\n"

@@ -7,6 +7,7 @@ from __future__ import annotations
 import types
 
 import torch
+from torch.utils._pytree import tree_leaves
 
 from . import graphs, state
 from .state import CPU, CUDA, is_cuda_device, on_gpu
@@ -52,15 +53,9 @@ def cuda_set_rng_state(new_state, device="cuda") -> None:
 
 
 def _tag_tree(obj):
-    stack = [obj]
-    while stack:
-        x = stack.pop()
+    for x in tree_leaves(obj):
         if isinstance(x, torch.Tensor):
             state.tag(x)
-        elif isinstance(x, dict):
-            stack.extend(x.values())
-        elif isinstance(x, (list, tuple)):
-            stack.extend(x)
     return obj
 
 

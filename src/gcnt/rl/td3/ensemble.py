@@ -60,10 +60,10 @@ class Ensemble(nn.Module):
         self.size = len(members)
         self.net = copy.deepcopy(members[0])
         per_member = [dict(m.named_parameters()) for m in members]
-        for name, p in list(self.net.named_parameters()):
-            module_path, _, leaf = name.rpartition(".")
+        for key, p in list(self.net.named_parameters()):
+            module_path, _, leaf = key.rpartition(".")
             owner = self.net.get_submodule(module_path)
-            stacked = torch.stack([own[name].detach() for own in per_member])
+            stacked = torch.stack([own[key].detach() for own in per_member])
             owner._parameters[leaf] = nn.Parameter(stacked, requires_grad=p.requires_grad)
         self.chain = TensorChain(self.net)
         # every (module, name) holding a parameter; copies of the ensemble copy these along

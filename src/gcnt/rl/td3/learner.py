@@ -60,6 +60,7 @@ from gcnt import keys as K
 from gcnt.envs.stepper import usable_cpus
 from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
+from gcnt.nn.layers import as_dtype
 from gcnt.recipes import Recipe
 from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs, owned
 from gcnt.rl.algorithm import Algorithm, CollectSettings
@@ -251,9 +252,9 @@ class TD3Learner:
 
             def error(out: dict) -> torch.Tensor:
                 q = out[LIMB_Q]
-                return critic_error(q, _as(target, q.dtype), mask, self.rule)
+                return critic_error(q, as_dtype(target, q.dtype), mask, self.rule)
 
-            loss = _as(
+            loss = as_dtype(
                 self._twin(self.critics, now, robots, error, backward=each).sum(), action.dtype
             )
             if backward and not each:
@@ -283,7 +284,7 @@ class TD3Learner:
                     lambda out: deterministic_actor_loss(out[LIMB_Q], mask, self.rule),
                     fixed=True,
                 )
-            return _as(loss, now[OBS].dtype)
+            return as_dtype(loss, now[OBS].dtype)
 
     # Both steps take and return TensorDicts (what a CUDA graph captures) and leave no gradient
     # behind (zeroed after the optimiser step, as a captured graph needs).
@@ -407,11 +408,6 @@ def _limb_q(out: dict) -> torch.Tensor:
     return out[LIMB_Q]
 
 
-def _as(t: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
-    """``t`` in ``dtype`` (no operation when it already is)."""
-    return t if t.dtype == dtype else t.to(dtype)
-
-
 def clip_norm(params: Sequence[torch.Tensor], max_norm: float) -> None:
     """torch's gradient-norm clip over all ``params`` together."""
     torch.nn.utils.clip_grad_norm_(params, max_norm, foreach=True)
@@ -426,7 +422,7 @@ def apply_gradients(
 ) -> None:
     """The optimiser tail of every TD3 step: ``clip`` the gradients of ``params`` to
     ``max_grad_norm`` (0: no clipping), step, and leave no gradient behind (``keep``: zeroed in
-    place, for gradients that the next step adds into)."""
+    place, for gradients the next step writes into: the ensemble members' slices)."""
     if max_grad_norm > 0:
         clip(params, max_grad_norm)
     opt.step()
