@@ -290,6 +290,7 @@ def test_a_diverging_run_stops_and_keeps_its_last_good_checkpoint(tmp_path, reci
             str(recipe_file),
             "td3.lr=1e30",
             "td3.max_grad_norm=0",
+            "td3.update_during_random=false",  # a checkpoint before the first update
             "collector.total_frames=200",
             f"run_dir={run}",
         ],

@@ -46,7 +46,7 @@ def tiny(path, run_dir, *extra, frames=None):
     recipe = load_recipe(path, [*TINY, f"run_dir={run_dir}", *extra])
     n = len(train_robots(recipe))
     # a few update phases whatever the robot count: random steps, then ~4 lockstep chunks
-    recipe.td3.init_random_frames = 5 * n
+    recipe.td3.init_random_frames = 5 * n if recipe.td3.random_counted == "total" else 5
     recipe.collector.total_frames = frames or 20 * n
     return recipe
 
@@ -86,6 +86,75 @@ def test_masked_mean_is_the_batch_mean_of_per_robot_means_over_real_limbs():
     values = torch.tensor([[1.0, 3.0, 1000.0], [4.0, 4.0, 4.0]], dtype=torch.float64)
     mask = torch.tensor([[True, True, False], [True, True, True]])
     assert masked_mean(values, mask).item() == (2.0 + 4.0) / 2
+
+
+def _random_phase_run(tmp_path, name, *extra):
+    """Two hoppers, 20 random steps per robot, a log row every collector batch (10 steps)."""
+    recipe = load_recipe(
+        ROOT / "recipes/smpenv/hopper.yaml",
+        [
+            *TINY,
+            "env.robots=[hopper_3,hopper_4]",
+            "td3.init_random_frames=20",
+            "td3.updates_per_step=1.0",
+            "td3.schedule=mixed",
+            "collector.total_frames=70",
+            "logger.log_interval=10",
+            f"run_dir={tmp_path / name}",
+            *extra,
+        ],
+    )
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    train(recipe, run)
+    return run.load_recipe(), run.read_metrics()
+
+
+def test_random_phase_is_per_robot_with_updates_from_the_first_round(tmp_path):
+    """The SWAT/AMORPHEUS reading (the default): ``init_random_frames`` per training robot
+    (2 x 20 = 40 random steps), and updates on the random phase's data as soon as every robot
+    holds a batch."""
+    recipe, rows = _random_phase_run(tmp_path, "originals")
+    assert recipe.resolved["init_random_frames"] == 40
+    during = [r for r in rows if r["env_steps"] <= 40]
+    assert during and during[-1]["updates"] > 0
+    assert rows[-1]["updates"] > during[-1]["updates"]
+
+
+def test_random_phase_over_all_robots_without_updates_when_asked(tmp_path):
+    """gcnt's earlier reading, kept as an option: 20 random steps over all robots, no update
+    before they are done."""
+    recipe, rows = _random_phase_run(
+        tmp_path, "total", "td3.random_counted=total", "td3.update_during_random=false"
+    )
+    assert recipe.resolved["init_random_frames"] == 20
+    assert all(r["updates"] == 0 for r in rows if r["env_steps"] < 20)
+    assert rows[-1]["updates"] > 0
+
+
+def test_a_random_phase_of_the_whole_run_counted_per_robot_is_refused(tmp_path, capsys):
+    code = gcnt(
+        [
+            "train",
+            str(ROOT / "recipes/smpenv/hopper.yaml"),
+            *TINY,
+            "env.robots=[hopper_3,hopper_4]",
+            "td3.init_random_frames=40",
+            "collector.total_frames=60",
+            f"run_dir={tmp_path / 'run'}",
+        ]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and "td3.init_random_frames (40 x 2 robots" in err[-1]
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_recorded_run_without_the_random_phase_keys_keeps_its_reading():
+    """A run recorded before ``random_counted`` and ``update_during_random`` existed resumes as
+    it trained: random steps over all robots, no update during them."""
+    recipe = RunDir(ROOT / "tests/data/td3_run_b52e8ec").load_recipe(anywhere=True)
+    assert (recipe.td3.random_counted, recipe.td3.update_during_random) == ("total", False)
+    assert load_recipe(ROOT / "recipes/smpenv/walker.yaml").td3.random_counted == "per_robot"
 
 
 @pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(ROOT / "recipes")))

@@ -755,7 +755,7 @@ def load_run_recipe(
     ``anywhere`` (a run read rather than trained on: evaluation, analysis, a fine-tune's source),
     a run recorded on a CUDA device that this machine lacks is read on the CPU, in one info line;
     a resumed run instead names the ``device=cpu`` override that moves it."""
-    data = read_recipe_file(path)
+    data = _as_recorded(read_recipe_file(path))
     overrides = list(overrides or [])
     given = {o.split("=", 1)[0].strip() for o in overrides if "=" in o}
     effective = yaml.safe_load(yaml.safe_dump(data or {}))
@@ -784,6 +784,22 @@ def load_run_recipe(
         )
         overrides += [f"compile.{key}=false" for key in dropped]
     return recipe_from_dict(data, overrides, source=str(path))
+
+
+def _as_recorded(data: Any) -> Any:
+    """A recorded recipe with the keys it predates set to what its run trained with: an
+    algorithm section's ``BEFORE_KEY`` values, where the section lacks the key (keys added with
+    a new default that changed what a missing key means)."""
+    if not isinstance(data, dict) or not isinstance(data.get("algo"), str):
+        return data
+    try:
+        before = getattr(algorithm_section(data["algo"]), "BEFORE_KEY", {})
+    except RecipeError:
+        return data
+    section = data.get(data["algo"])
+    if before and isinstance(section, dict):
+        data = {**data, data["algo"]: {**before, **section}}
+    return data
 
 
 def _device_here(device: str) -> bool:

@@ -6,7 +6,7 @@ Imported by the recipe loader without torch, so keep this module free of heavy i
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, ClassVar, Literal
 
 from gcnt.rl.config_check import check_range
 
@@ -14,9 +14,16 @@ from gcnt.rl.config_check import check_range
 @dataclass
 class TD3Config:
     # --- collection
-    #: first steps with uniform random actions in [-1, 1] (counted over all robots; rounded up
-    #: to whole collector batches)
+    #: first steps with uniform random actions in [-1, 1], per training robot or over all of
+    #: them (``random_counted``); rounded up to whole collector batches
     init_random_frames: int = 10_000
+    #: "per_robot": the random phase lasts ``init_random_frames`` times the number of training
+    #: robots (SWAT's and AMORPHEUS's main.py: ``start_timesteps * num_envs_train``), "total":
+    #: ``init_random_frames`` over all robots (SMP's main.py)
+    random_counted: Literal["per_robot", "total"] = "per_robot"
+    #: update from the first collection round on, on the random phase's data too (the original
+    #: main.py files train after every round); false: the first update follows the random phase
+    update_during_random: bool = True
     #: "paper": lockstep until every robot has finished an episode, then per-robot updates from
     #: its own buffer, as many as its transitions. "mixed": every ``steps_per_batch`` lockstep
     #: steps, updates on padded batches that mix all robots (batch_size samples of each robot)
@@ -77,6 +84,10 @@ class TD3Config:
         check_range(self, ">= 0 finite", "exploration_noise", "policy_noise", "noise_clip")
         if self.max_grad_norm != self.max_grad_norm or self.max_grad_norm == float("inf"):
             raise ValueError(f"max_grad_norm must be finite (<= 0: off), got {self.max_grad_norm}")
+        if self.random_counted not in ("per_robot", "total"):
+            raise ValueError(
+                f"random_counted must be per_robot or total, got {self.random_counted!r}"
+            )
         if self.target not in ("auto", "limb", "robot_mean", "robot_sum"):
             raise ValueError(
                 f"target must be one of auto, limb, robot_mean, robot_sum, got {self.target!r}"
@@ -90,12 +101,31 @@ class TD3Config:
 
     def check_recipe(self, recipe) -> None:
         """Relations with the shared settings (``recipe`` is the whole recipe)."""
-        total = recipe.collector.total_frames
-        if self.init_random_frames >= total:
+        self.check_random_phase(recipe.collector.total_frames, 1)
+
+    def check_random_phase(self, total_frames: int, num_robots: int) -> None:
+        """A random phase as long as the run is refused: the policy would never act."""
+        random = self.random_frames(num_robots)
+        if random >= total_frames:
+            per = f" x {num_robots} robots (td3.random_counted=per_robot)" if random != (
+                self.init_random_frames
+            ) else ""
             raise ValueError(
-                f"td3.init_random_frames ({self.init_random_frames}) must be below "
-                f"collector.total_frames ({total}): the policy would never learn"
+                f"td3.init_random_frames ({self.init_random_frames}{per}) must be below "
+                f"collector.total_frames ({total_frames}): the policy would never act"
             )
+
+    def random_frames(self, num_robots: int) -> int:
+        """The env steps of uniform-random actions over all ``num_robots`` training robots
+        (before rounding to whole collector batches)."""
+        per_robot = self.random_counted == "per_robot"
+        return self.init_random_frames * (max(1, num_robots) if per_robot else 1)
+
+    #: what a recorded run whose td3 section lacks a key trained with (the key came later)
+    BEFORE_KEY: ClassVar[dict[str, Any]] = {
+        "random_counted": "total",
+        "update_during_random": False,
+    }
 
 
 #: networks whose outputs are a monolithic MLP's per-slot outputs rather than a per-limb module's

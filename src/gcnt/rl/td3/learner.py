@@ -61,7 +61,7 @@ from gcnt.envs.stepper import usable_cpus
 from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
 from gcnt.nn.layers import as_dtype
-from gcnt.recipes import Recipe
+from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs, owned
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.config_check import check_replay_memory
@@ -512,6 +512,12 @@ class TD3(Algorithm):
         super().__init__(recipe, env, robots)
         c: TD3Config = self.config
         n = len(self.robots)
+        try:
+            c.check_random_phase(recipe.collector.total_frames, n)
+        except ValueError as e:
+            raise RecipeError(str(e)) from None
+        #: env steps of uniform-random actions over all robots
+        self.random_frames = c.random_frames(n)
         if one_update_thread(recipe) and torch.get_num_threads() != 1:
             log.info(
                 "TD3 update on a %d-core CPU: torch intra-op threads %d -> 1 "
@@ -545,16 +551,18 @@ class TD3(Algorithm):
             c.exploration_noise,
         )
         fpb = self._frames_per_batch()
-        random_left = _whole_batches(max(0, c.init_random_frames - env_steps), fpb)
+        random_left = _whole_batches(max(0, self.random_frames - env_steps), fpb)
         return CollectSettings(explore, fpb, random_left)
 
     def store(self, data: TensorDictBase, env_steps: int) -> Iterator[TensorDictBase]:
         """Store a collected batch; the mini-batches of the update phase the schedule then asks
-        for (none before ``init_random_frames`` or while a robot holds fewer than a batch)."""
+        for (none while a robot holds fewer than a batch, nor during the random phase unless
+        ``update_during_random``)."""
         c = self.config
         self.stored += self.replay.extend(data)
         self.schedule.add(data)
-        warm = env_steps >= c.init_random_frames and int(self.replay.sizes.min()) >= c.batch_size
+        random_done = c.update_during_random or env_steps >= self.random_frames
+        warm = random_done and int(self.replay.sizes.min()) >= c.batch_size
         return self.schedule.batches(self.replay, warm)
 
     def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
@@ -566,7 +574,7 @@ class TD3(Algorithm):
         return {
             "num_envs": int(self.env.batch_size[0]),
             "frames_per_batch": fpb,
-            "init_random_frames": _whole_batches(c.init_random_frames, fpb),
+            "init_random_frames": _whole_batches(self.random_frames, fpb),
             "buffer_per_robot": rb.per_robot_capacity(
                 len(self.robots), c.buffer_size_per_robot, c.buffer_total_size
             ),
