@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from cli_helpers import wait_for_metrics
 from test_ppo import tiny_recipe
@@ -123,3 +124,22 @@ def test_a_killed_worker_ends_the_run_in_one_line(tmp_path: Path):
     assert proc.returncode == 2 and "Traceback" not in stderr, stderr[-3000:]
     assert len(lines) == 1 and "killed by SIGKILL" in lines[0], stderr[-3000:]
     assert f"gcnt train --resume {run}" in lines[0]
+
+
+def test_the_multi_collectors_first_iteration_is_normalised(tmp_path: Path):
+    """The workers normalise with the statistics of the iteration's start: before the first,
+    a reset of the training env has joined them (no iteration runs on the prior alone)."""
+    from gcnt.rl.loop import prepare
+
+    recipe = tiny_recipe(tmp_path / "run", collector="multi", workers=2)
+    prepared = prepare(recipe)
+    try:
+        norm = prepared.algo.learner.obs_norm
+        assert float(norm.count.max()) < 1.0  # the prior only
+        prepared.algo.collect_settings(0)
+        assert round(float(norm.count.max())) == recipe.ppo.num_envs  # one reset of every env
+        seen = norm.count.clone()
+        prepared.algo.collect_settings(0)  # a second call (a resume) adds nothing
+        assert torch.equal(norm.count, seen)
+    finally:
+        prepared.env.close()

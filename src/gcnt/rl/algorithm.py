@@ -43,6 +43,9 @@ class CollectSettings:
     frames_per_batch: int
     #: frames of uniformly random actions before the policy acts (a multiple of the above)
     init_random_frames: int = 0
+    #: counted env steps (:meth:`Algorithm.admit`) of random actions, where they are not the
+    #: collector's frames: the run loop ends the collector's random phase once it counted them
+    random_steps: int | None = None
     #: env constructors, one per worker process: collect with torchrl's MultiSyncCollector over
     #: them (the policy's weights are sent to the workers after each batch is processed) instead
     #: of the training env in this process. Their envs together must match the training env.
@@ -94,6 +97,16 @@ class Algorithm(ABC):
 
         ``env_steps`` counts the steps of every batch so far, this one included.
         """
+
+    def admit(self, data: TensorDictBase) -> TensorDictBase:
+        """The transitions of a collected batch that the run keeps and counts (default: all
+        of them, as collected)."""
+        return data
+
+    def reset_due(self) -> bool:
+        """Whether every sub-env must start a new episode before the next batch (asked once
+        after each batch's update phase)."""
+        return False
 
     def log_extras(self) -> dict[str, float]:
         """Extra scalars for the next log row (learning rate, KL, ...); cleared by the callee."""

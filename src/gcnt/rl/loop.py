@@ -297,6 +297,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
                 # a worker that dies while the loop waits for it ends the wait (worker_watch)
                 with worker_watch(collector, run) if multi else contextlib.nullcontext():
                     for data in collector:
+                        data = algo.admit(data)  # the steps the run keeps and counts
                         env_steps += data.numel()
                         stats.add_episodes(data)
                         row = after_update(
@@ -304,6 +305,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
                             algo.process(data, env_steps), env_steps,
                         )  # fmt: skip
                         bar.update(data.numel())  # 100% once the last batch's update is done
+                        follow_algorithm(collector, settings, algo, env_steps)
                         if stop.requested():
                             stop_here(recipe, [run], [algo], [logger], [cadence], [env_steps])
                         if multi:  # a dead worker would never acknowledge the new weights
@@ -401,6 +403,16 @@ def resume_checkpoint(run: RunDir, algo: Algorithm) -> int:
     run.truncate_metrics(env_steps)
     log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, algo.updates)
     return env_steps
+
+
+def follow_algorithm(collector, settings: CollectSettings, algo: Algorithm, env_steps: int):
+    """After a batch: end the collector's random phase once the algorithm counted its random
+    steps (``settings.random_steps``), and start a new episode in every sub-env when the
+    algorithm asks for it."""
+    if settings.random_steps is not None and env_steps >= settings.random_steps:
+        collector.init_random_frames = 0
+    if algo.reset_due():
+        collector.reset()
 
 
 def make_collector(recipe: Recipe, env: EnvBase, settings: CollectSettings):

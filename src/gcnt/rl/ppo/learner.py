@@ -18,8 +18,9 @@ One iteration, read top to bottom (:meth:`PPOLearner.learn`):
    iteration is skipped (KL early stop); Adam with a warm-up + cosine learning rate and
    gradient-norm clipping;
 5. the robot sampler updates its probabilities from the finished episodes' lengths (with the
-   ``multi`` collector, whose workers normalise with copies of the statistics, the statistics
-   also merge the iteration's observations here).
+   ``multi`` collector, whose workers normalise with copies of the statistics of the iteration's
+   start, the statistics also merge the iteration's observations here; before the first
+   iteration they are those of one reset of the training env).
 
 With ``robot_sampling: sampled`` the envs are slots: each takes a robot drawn by
 :class:`~gcnt.rl.ppo.robot_sampler.RobotSampler` at every reset (``BatchedMujocoEnv.use_robot_pool``).
@@ -247,7 +248,9 @@ class PPOLearner:
 
     def learn(self, data: TensorDictBase) -> Iterator[dict[str, float]]:
         """One PPO iteration on ``data`` [N, T] (raw observations, scaled rewards); yields one
-        loss dict per mini-batch step. Updates the observation statistics at the end."""
+        loss dict per mini-batch step. At the end the batch's observations join the statistics
+        when the collecting policy did not add them as it acted (the ``multi`` collector's
+        workers, another policy)."""
         o = self.config
         device = self.recipe.device
         batch = self.advantages(self.normalized(data.to(device)))
@@ -506,7 +509,19 @@ class PPO(Algorithm):
                     f"ppo.collector: multi with fixed robots needs num_envs / workers ({per}) to "
                     f"be a multiple of the {len(self.robots)} robots"
                 )
+            self._statistics_from_a_reset()
         return CollectSettings(self.policy(), self.frames_per_batch, 0, env_makers=makers)
+
+    def _statistics_from_a_reset(self) -> None:
+        """Before the ``multi`` collector's first iteration, whose workers normalise with the
+        statistics of the iteration's start: a reset of the training env joins the statistics,
+        so that the first iteration is normalised as every later one is (the single collector
+        gets there by letting the reset observations join as it acts)."""
+        norm = self.learner.obs_norm
+        if norm is None or bool((norm.count > 1.0).any()):  # seen observations already
+            return
+        reset = self.env.reset()
+        norm.update(reset.get(OBS).to(norm.mean.device), reset.get(MASK).to(norm.mean.device))
 
     def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
         o: PPOConfig = self.config

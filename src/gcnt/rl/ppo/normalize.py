@@ -3,9 +3,11 @@
 * :class:`ObsNormalizer`: running mean and variance per limb slot x feature, over real limbs only
   (a slot's statistics come from the robots that have that limb); observations become
   ``clip((x - mean) / sqrt(var + eps), ±clip)``, zero on padded limbs. A module, so its
-  statistics travel in ``state_dict``; it changes only when :meth:`ObsNormalizer.update` is called
-  (PPO calls it once per iteration, so that the collected log-probabilities and the update see
-  the same normalisation); at evaluation it is frozen.
+  statistics travel in ``state_dict``; it changes only when :meth:`ObsNormalizer.update` is called:
+  PPO's collecting policy adds each new observation before normalising it (the single collector,
+  as a ``VecNormalize`` wrapper does), or the iteration's batch joins after the update (the
+  ``multi`` collector's workers normalise with a copy of the statistics); the update reuses the
+  normalised observations the policy acted on. At evaluation it is frozen.
 * :class:`RewardScaler`: rewards divided by the running std of each env's discounted return,
   clipped.
 

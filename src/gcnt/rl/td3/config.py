@@ -31,6 +31,12 @@ class TD3Config:
     #: lockstep steps per collector batch (in both schedules; "paper" checks for finished
     #: robots at these boundaries)
     steps_per_batch: int = 50
+    #: which steps of a "paper" round are stored and counted. "first_episode": each sub-env's
+    #: steps until its first episode of the round ends; the steps it takes while it waits for
+    #: the others are neither stored nor counted, and every sub-env starts the next round with a
+    #: new episode (the original main.py files: a finished env waits, and all reset together).
+    #: "all": every step of the round (finished sub-envs go on with new episodes)
+    round_steps: Literal["first_episode", "all"] = "first_episode"
     #: std of the Gaussian exploration noise added to the actor's actions
     exploration_noise: float = 0.126
     # --- replay
@@ -84,6 +90,8 @@ class TD3Config:
         check_range(self, ">= 0 finite", "exploration_noise", "policy_noise", "noise_clip")
         if self.max_grad_norm != self.max_grad_norm or self.max_grad_norm == float("inf"):
             raise ValueError(f"max_grad_norm must be finite (<= 0: off), got {self.max_grad_norm}")
+        if self.round_steps not in ("first_episode", "all"):
+            raise ValueError(f"round_steps must be first_episode or all, got {self.round_steps!r}")
         if self.random_counted not in ("per_robot", "total"):
             raise ValueError(
                 f"random_counted must be per_robot or total, got {self.random_counted!r}"
@@ -107,9 +115,11 @@ class TD3Config:
         """A random phase as long as the run is refused: the policy would never act."""
         random = self.random_frames(num_robots)
         if random >= total_frames:
-            per = f" x {num_robots} robots (td3.random_counted=per_robot)" if random != (
-                self.init_random_frames
-            ) else ""
+            per = (
+                f" x {num_robots} robots (td3.random_counted=per_robot)"
+                if random != (self.init_random_frames)
+                else ""
+            )
             raise ValueError(
                 f"td3.init_random_frames ({self.init_random_frames}{per}) must be below "
                 f"collector.total_frames ({total_frames}): the policy would never act"
@@ -125,6 +135,7 @@ class TD3Config:
     BEFORE_KEY: ClassVar[dict[str, Any]] = {
         "random_counted": "total",
         "update_during_random": False,
+        "round_steps": "all",
     }
 
 

@@ -460,13 +460,31 @@ def loss_rows(losses: list[dict[str, torch.Tensor]]) -> list[dict[str, Any]]:
 
 
 class UpdateSchedule:
-    """When to update and on what: yields the mini-batches of each update phase."""
+    """When to update and on what: yields the mini-batches of each update phase.
 
-    def __init__(self, config: TD3Config, num_robots: int):
+    With ``rounds`` (the "paper" schedule with ``round_steps: first_episode``) it also keeps
+    which sub-envs finished their first episode of the round (:meth:`admit` drops what they
+    collect after it) and asks for a reset of every sub-env when a round ends."""
+
+    def __init__(self, config: TD3Config, num_robots: int, num_envs: int = 0):
         self.kind = config.schedule
         self.updates_per_step = config.updates_per_step
         self.pending = np.zeros(num_robots)  # transitions stored since the last update phase
         self.finished = np.zeros(num_robots, dtype=bool)  # robot ended an episode since then
+        self.rounds = self.kind == "paper" and config.round_steps == "first_episode"
+        self.env_done = np.zeros(num_envs, dtype=bool)  # sub-env ended an episode this round
+        self.reset_due = False
+
+    def admit(self, data: TensorDictBase) -> TensorDictBase:
+        """``data`` [envs, steps] without the steps each sub-env took after its first episode
+        of the round ended (flat [kept]); all of it when not in ``rounds``."""
+        if not self.rounds:
+            return data
+        done = data["next", "done"].reshape(data.shape).cpu()
+        after_first = (done.long().cumsum(-1) - done.long()) > 0  # after a done of this batch
+        keep = ~(torch.from_numpy(self.env_done)[:, None] | after_first)
+        self.env_done |= done.any(-1).numpy()
+        return data[keep.to(data.device)]
 
     def add(self, data: TensorDictBase) -> None:
         morph = data[MORPH_ID]
@@ -474,15 +492,18 @@ class UpdateSchedule:
         self.finished[morph[data["next", "done"].squeeze(-1)].numpy()] = True
 
     def batches(self, replay: rb.RobotReplay, warm: bool) -> Iterator[TensorDictBase]:
+        round_over = self.kind == "paper" and self.finished.all()
         if not warm:  # random exploration, or a buffer still smaller than a batch
             self.pending[:] = 0
+            if round_over and self.rounds:
+                self._end_round()
             return
-        if self.kind == "paper" and self.finished.all():
+        if round_over:
             # each robot in turn, as many updates as it stored transitions, from its own ring
             for robot, n in enumerate(self.pending):
                 for _ in range(round(n * self.updates_per_step)):
                     yield replay.sample_robot(robot)
-            self.finished[:] = False
+            self._end_round()
         elif self.kind == "mixed":
             # one padded batch holds batch_size transitions of every robot (one gather)
             for _ in range(round(self.pending.sum() * self.updates_per_step / len(self.pending))):
@@ -491,12 +512,24 @@ class UpdateSchedule:
             return
         self.pending[:] = 0
 
+    def _end_round(self) -> None:
+        self.finished[:] = False
+        if self.rounds:
+            self.env_done[:] = False
+            self.reset_due = True
+
     def state_dict(self) -> dict[str, Any]:
-        return {"pending": self.pending.tolist(), "finished": self.finished.tolist()}
+        return {
+            "pending": self.pending.tolist(),
+            "finished": self.finished.tolist(),
+            "env_done": self.env_done.tolist(),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.pending[:] = state["pending"]
         self.finished[:] = state["finished"]
+        if len(state.get("env_done", [])) == len(self.env_done):
+            self.env_done[:] = state["env_done"]
 
 
 #: the replay checkpoint's file in the run's buffers directory (the stored count in its name)
@@ -531,7 +564,7 @@ class TD3(Algorithm):
         replay_device = recipe.device if recipe.compile.replay_on_device else "cpu"
         check_replay_memory(env, n, capacity, replay_device)  # allocated later: refuse it now
         self.replay = rb.RobotReplay(n, capacity, c.batch_size, device=replay_device)
-        self.schedule = UpdateSchedule(c, n)
+        self.schedule = UpdateSchedule(c, n, int(env.batch_size[0]))
         self.stored = 0
         self._buffer_file: str | None = None  # the replay file the last loaded state names
 
@@ -552,7 +585,17 @@ class TD3(Algorithm):
         )
         fpb = self._frames_per_batch()
         random_left = _whole_batches(max(0, self.random_frames - env_steps), fpb)
+        if self.schedule.rounds:  # fewer steps counted than collected: the loop ends the phase
+            random_left = _whole_batches(RANDOM_UNTIL_TOLD, fpb) if random_left else 0
+            return CollectSettings(explore, fpb, random_left, random_steps=self.random_frames)
         return CollectSettings(explore, fpb, random_left)
+
+    def admit(self, data: TensorDictBase) -> TensorDictBase:
+        return self.schedule.admit(data)
+
+    def reset_due(self) -> bool:
+        due, self.schedule.reset_due = self.schedule.reset_due, False
+        return due
 
     def store(self, data: TensorDictBase, env_steps: int) -> Iterator[TensorDictBase]:
         """Store a collected batch; the mini-batches of the update phase the schedule then asks
@@ -648,6 +691,11 @@ class TD3(Algorithm):
 def _with_noise(actor: TensorChainModule, spec, sigma: float) -> TensorDictSequential:
     """``actor`` followed by constant Gaussian exploration noise of std ``sigma``."""
     return TensorDictSequential(actor, GaussianExploration(spec, sigma, ACTION))
+
+
+#: the collector's random frames when the run loop ends its random phase (a whole number of
+#: batches no run reaches)
+RANDOM_UNTIL_TOLD = 2**62
 
 
 def _whole_batches(frames: int, frames_per_batch: int) -> int:
