@@ -131,8 +131,11 @@ class CompileConfig:
     policy_compile: bool = False
     #: capture the collector's policy in a CUDA graph; CUDA only
     policy_cudagraphs: bool = False
-    #: eager calls before a step is compiled or captured
+    #: eager calls before a step is captured in a CUDA graph
     warmup: int = 2
+    #: where torch.compile caches compiled code; null: $TORCHINDUCTOR_CACHE_DIR if set, else
+    #: $XDG_CACHE_HOME/gcnt/inductor (~/.cache/gcnt/inductor), never the shared /tmp
+    cache_dir: str | None = None
     #: torch's intra-op (OpenMP) threads for the run; null (default): torch's own, one per core.
     #: On a machine shared with other jobs, 1 keeps every small kernel from waiting for a thread
     #: another job has taken (PPO's quick start ran 3.7x faster end to end on 1 than on 2 beside
