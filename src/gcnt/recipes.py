@@ -111,11 +111,12 @@ class EvalConfig:
 @dataclass
 class CompileConfig:
     """Speed switches of the learner and the collector, shared by every algorithm (the names of
-    torchrl's sota-implementations). All off by default: on a CPU, torch.compile took minutes to
-    compile small networks and then ran slower than eager; the rest need CUDA."""
+    torchrl's sota-implementations). All off by default: on a CPU, torch.compile takes minutes to
+    compile small networks (docs/performance.md); the rest need CUDA."""
 
-    #: torch.compile the learner's update steps (TD3: the critic step and the actor + target
-    #: step, separately; PPO: the loss forward, its backward through AOTAutograd)
+    #: torch.compile the learner's loss forwards, each as one graph (TD3: the critic loss and
+    #: the actor loss, the optimiser tail eager; PPO: the loss forward), their backward through
+    #: AOTAutograd
     compile: bool = False
     #: torch.compile mode: default | reduce-overhead | max-autotune (unset: default)
     mode: str | None = None
