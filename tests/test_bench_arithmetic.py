@@ -43,3 +43,31 @@ def test_count_launches_counts_the_top_level_operators_on_a_cpu():
     one = count_launches(lambda: lin(x))
     assert count_launches(lambda: [lin(x) for _ in range(5)]) == 5 * one
     assert "dispatched operators per update: 2.0 us per launch" in launch_line(1000, 2.0, "cpu")
+
+
+def test_flops_of_an_update_with_critics_on_two_threads_count_both_critics():
+    """The FLOP counter sees its own thread only: counted on one thread
+    (``on_this_thread``), an update whose twin critics run on two threads counts what the
+    one-call ensemble counts; counted as it runs, the helper thread's critic is missing."""
+    from pathlib import Path
+
+    from gcnt.bench.td3 import on_this_thread
+    from gcnt.recipes import load_recipe
+    from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import replay as rb
+    from gcnt.rl.td3.learner import TD3Learner
+
+    quick = Path(__file__).parents[1] / "recipes/quickstart.yaml"
+    recipe = load_recipe(quick, ["network.kwargs={d_model: 8, layers: 1, ff: 8, heads: 2}"])
+    env = make_env(recipe, train_robots(recipe))
+    replay = rb.RobotReplay(3, capacity=10, batch_size=4)
+    replay.extend(env.rollout(5, break_when_any_done=False))
+    batch = replay.sample_mixed()
+    threads = TD3Learner(recipe, env, twin_threads=True)
+    one_call = TD3Learner(recipe, env, twin_threads=False)
+    env.close()
+    with on_this_thread(threads):
+        counted, _ = count_flops(lambda: threads.critic_step(batch))
+    as_run, _ = count_flops(lambda: threads.critic_step(batch))
+    whole, _ = count_flops(lambda: one_call.critic_step(batch))
+    assert counted == whole > as_run

@@ -111,11 +111,12 @@ class EvalConfig:
 @dataclass
 class CompileConfig:
     """Speed switches of the learner and the collector, shared by every algorithm (the names of
-    torchrl's sota-implementations). All off by default: on a CPU, torch.compile took minutes to
-    compile small networks and then ran slower than eager; the rest need CUDA."""
+    torchrl's sota-implementations). All off by default: on a CPU, torch.compile takes minutes to
+    compile small networks (docs/performance.md); the rest need CUDA."""
 
-    #: torch.compile the learner's update steps (TD3: the critic step and the actor + target
-    #: step, separately; PPO: the loss forward, its backward through AOTAutograd)
+    #: torch.compile the learner's loss forwards, each as one graph (TD3: the critic loss and
+    #: the actor loss, the optimiser tail eager; PPO: the loss forward), their backward through
+    #: AOTAutograd
     compile: bool = False
     #: torch.compile mode: default | reduce-overhead | max-autotune (unset: default)
     mode: str | None = None
@@ -131,8 +132,11 @@ class CompileConfig:
     policy_compile: bool = False
     #: capture the collector's policy in a CUDA graph; CUDA only
     policy_cudagraphs: bool = False
-    #: eager calls before a step is compiled or captured
+    #: eager calls before a step is captured in a CUDA graph
     warmup: int = 2
+    #: where torch.compile caches compiled code; null: $TORCHINDUCTOR_CACHE_DIR if set, else
+    #: $XDG_CACHE_HOME/gcnt/inductor (~/.cache/gcnt/inductor), never the shared /tmp
+    cache_dir: str | None = None
     #: torch's intra-op (OpenMP) threads for the run; null (default): torch's own, one per core.
     #: On a machine shared with other jobs, 1 keeps every small kernel from waiting for a thread
     #: another job has taken (PPO's quick start ran 3.7x faster end to end on 1 than on 2 beside

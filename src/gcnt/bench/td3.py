@@ -28,6 +28,7 @@ one_update_thread`).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
 import time
@@ -60,20 +61,28 @@ def fixed_batch(recipe):
     return env, batch.to(recipe.device)
 
 
-def step_operators(learner, batch, device: str) -> dict:
-    """Launches of one critic step and of one actor step (:func:`count_launches`), and per
-    update (the actor step once every ``policy_delay`` updates). Counted with the twin critics
-    in turn: the profiler sees the calling thread only, and the operators are the same on two
-    threads."""
+@contextlib.contextmanager
+def on_this_thread(learner):
+    """The learner's twin critics in turn on the calling thread while inside (the same
+    operators as on two threads): torch's profiler and FLOP counter see the calling thread
+    only, and would miss the critic of the helper thread."""
     from gcnt.rl.td3.twin import EachInTurn, InTurn
 
     runner = learner.twin
     learner.twin = EachInTurn() if runner.parallel else InTurn()
     try:
-        critic, critic_work = count_operators(lambda: learner.critic_step(batch), device)
-        actor, actor_work = count_operators(lambda: learner.actor_step(batch), device)
+        yield learner
     finally:
         learner.twin = runner
+
+
+def step_operators(learner, batch, device: str) -> dict:
+    """Launches of one critic step and of one actor step (:func:`count_launches`), and per
+    update (the actor step once every ``policy_delay`` updates), counted on one thread
+    (:func:`on_this_thread`)."""
+    with on_this_thread(learner):
+        critic, critic_work = count_operators(lambda: learner.critic_step(batch), device)
+        actor, actor_work = count_operators(lambda: learner.actor_step(batch), device)
     delay = learner.config.policy_delay
     return {
         "critic_step": critic,
@@ -106,7 +115,8 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
         for _ in range(period + 1):  # warm-up (first calls allocate; the actor step has run)
             learner.update(batch)
         out[name] = {"operators": step_operators(learner, batch, recipe.device)}
-    flops, _ = count_flops(lambda: [learners["new"].update(batch) for _ in range(period)])
+    with on_this_thread(learners["new"]) as learner:  # both critics' FLOPs counted
+        flops, _ = count_flops(lambda: [learner.update(batch) for _ in range(period)])
     out["flops_per_update"] = flops / period
     # whole policy_delay periods per round, so that every round holds the same actor steps
     per_round = max(period, -(-n_updates // rounds // period) * period)

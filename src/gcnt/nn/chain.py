@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
@@ -66,6 +66,9 @@ class Backbone:
     max_limbs: int | None = None
     #: the method's name in error messages
     name: str = "model"
+    #: static key -> (bound, setting): the table's values of that key must stay below the
+    #: bound (e.g. limb type ids below ``num_limb_types``), checked once per robot table
+    limits: dict = field(default_factory=dict)
 
 
 def assemble(
@@ -91,7 +94,12 @@ def assemble(
             f"NetIO.hfield_width to its decoder (limb_head_stage(..., hfield_width=...))"
         )
     lookup = GraphLookup(
-        table, static, max_limbs=backbone.max_limbs, owner=backbone.name, robot_names=robot_names
+        table,
+        static,
+        max_limbs=backbone.max_limbs,
+        owner=backbone.name,
+        robot_names=robot_names,
+        limits=backbone.limits,
     )
     stages: OrderedDict[str, TensorDictModuleBase] = OrderedDict()
     stages["lookup"] = lookup

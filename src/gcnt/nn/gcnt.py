@@ -66,6 +66,7 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     """GCNT's stages from ``limbs/input`` to ``limbs/out`` (WL width read from the table)."""
     stages = []
     static = []
+    limits = {}
     embeddings = []  # what the init scheme treats as the token embedding
     hyper = 0
     if cfg.hypernet:
@@ -87,6 +88,8 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
         gcn = gcn_stage(cfg.num_limb_types, cfg.gcn_width, cfg.gcn_layers, gcn_ctx)
         stages.append(("gcn", gcn))
         static += [K.CONTEXT if gcn_ctx else K.TYPE, K.ADJ]
+        if not gcn_ctx:  # one-hot types: ids past num_limb_types have no column
+            limits[K.TYPE] = (cfg.num_limb_types, "num_limb_types")
     if cfg.use_wl:
         static.append(K.WL)
     hidden_key = K.EMBED
@@ -119,5 +122,8 @@ def gcnt_backbone(cfg: GCNTConfig, io: NetIO, table: TensorDictBase) -> Backbone
     # the hypernetwork's generated decoder has its own init (HyperLinear)
     init_like_original(cfg.init, embeddings=embeddings, decoder=None if hyper else head.module)
     return Backbone(
-        stages, tuple(dict.fromkeys(static)), name="GCNT+HN" if cfg.hypernet else "GCNT"
+        stages,
+        tuple(dict.fromkeys(static)),
+        name="GCNT+HN" if cfg.hypernet else "GCNT",
+        limits=limits,
     )

@@ -9,7 +9,7 @@ for another (zero-shot evaluation), and :meth:`GraphLookup.set_table` swaps the 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -41,6 +41,9 @@ class GraphLookup(TensorDictModuleBase):
             a table with a larger robot raises :class:`RobotTooLargeError` naming it.
         owner: model name used in error messages.
         robot_names: names of the table's robots (by morph_id), for error messages.
+        limits: static key -> (bound, setting name): every value of that key in a table must
+            be below the bound (e.g. limb type ids below the GCN's ``num_limb_types``); read on
+            the host once per table, so no forward reads a tensor's value.
 
     Reads ``morph_id`` [*B] (a trailing singleton dim is accepted); writes each key as
     ``table[key][morph_id]``, overwriting what the input had (the env emits the same values).
@@ -54,8 +57,10 @@ class GraphLookup(TensorDictModuleBase):
         max_limbs: int | None = None,
         owner: str = "model",
         robot_names: Sequence[str] | None = None,
+        limits: Mapping[tuple[str, str], tuple[int, str]] | None = None,
     ) -> None:
         super().__init__()
+        self.limits = dict(limits or {})
         self.keys = (
             tuple(keys)
             if keys is not None
@@ -97,6 +102,13 @@ class GraphLookup(TensorDictModuleBase):
                 f"{who} has {int(sizes[i])} limbs; {self.owner} allows at most {self.max_limbs} "
                 "(raise its max_limbs)"
             )
+        for key, (bound, setting) in self.limits.items():
+            values = table.get(key, None)
+            if values is not None and values.numel() and int(values.max()) >= bound:
+                raise ValueError(
+                    f"{self.owner}: the robot table's {'/'.join(key)} holds {int(values.max())}, "
+                    f"past {setting}={bound} (ids 0..{bound - 1})"
+                )
         device = self._device()
         for key in self.keys:
             value = table.get(key).to(device)

@@ -129,7 +129,9 @@ class LimbGCN(nn.Module):
         """The one-hot limb types (``what="types"``; ``types`` is the GCN's input, the limb
         context with ``context_dim``) or Â (``"a_hat"``) in ``dtype``: constants of
         the robot table, computed at the first call with these tensors and kept while they are
-        unchanged (each update calls the GCN of every network on the same table)."""
+        unchanged (each update calls the GCN of every network on the same table). Compiled, they
+        are part of the graph. The type ids are checked against ``num_types`` once per table,
+        on the host, where the table is set (the chain's GraphLookup)."""
         compiling = torch.compiler.is_compiling()
         cache = self._graph_cache
         if (
@@ -138,15 +140,6 @@ class LimbGCN(nn.Module):
             or any(a is not b for a, b in zip(cache[0], (types, adj, mask), strict=True))
             or cache[1] != (types._version, adj._version, mask._version)
         ):
-            if (
-                not self.context_dim
-                and types.device.type == "cpu"
-                and types.numel()
-                and int(types.max()) >= self.num_types
-            ):
-                raise ValueError(
-                    f"limb type id {int(types.max())} >= num_limb_types {self.num_types}"
-                )
             cache = ((types, adj, mask), (types._version, adj._version, mask._version), {})
             if not compiling:
                 self._graph_cache = cache
@@ -172,7 +165,8 @@ class LimbGCN(nn.Module):
 
 
 def gcn_stage(num_types: int, width: int, layers: int, context_dim: int = 0) -> TensorDictModule:
-    """The GCN over limb types (``limbs/type``), or over the limb context with ``context_dim``."""
+    """The GCN over limb types (``limbs/type``), or over the limb context with ``context_dim``.
+    Its backbone bounds the type ids in the robot table (``Backbone.limits``)."""
     limbs = K.CONTEXT if context_dim else K.TYPE
     return TensorDictModule(
         LimbGCN(num_types, width, layers, context_dim), [limbs, K.ADJ, K.MASK], [K.GCN]

@@ -2,7 +2,8 @@
 
 For any algorithm (TD3 uses it; PPO can call the same helpers)::
 
-    step = accelerate(critic_step, recipe.compile)      # torch.compile, then a CUDA graph
+    loss = compile_step(critic_loss, recipe.compile, fullgraph=True)  # the loss forward compiled
+    step = accelerate(critic_step, recipe.compile)      # the whole step in a CUDA graph
     with autocast(recipe.compile, device):              # bf16 when compile.amp
         ...
     begin_step(recipe.compile)                          # before each call of a graphed step
@@ -20,7 +21,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -30,14 +34,57 @@ from gcnt.recipes import CompileConfig
 log = logging.getLogger(__name__)
 
 
-def compile_step(fn: Callable, config: CompileConfig) -> Callable:
-    """``torch.compile(fn)`` when ``compile.compile`` (with ``compile.mode``), else ``fn``."""
+def inductor_cache_dir(config: CompileConfig) -> Path:
+    """Where compiled code is cached: ``compile.cache_dir``, else ``$TORCHINDUCTOR_CACHE_DIR``
+    when the user set it, else ``$XDG_CACHE_HOME/gcnt/inductor`` (``~/.cache/gcnt/inductor``);
+    never inductor's own default, a folder under the shared ``/tmp``."""
+    if config.cache_dir:
+        return Path(config.cache_dir).expanduser()
+    if os.environ.get("TORCHINDUCTOR_CACHE_DIR"):
+        return Path(os.environ["TORCHINDUCTOR_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "gcnt" / "inductor"
+
+
+class _Timed:
+    """A compiled function that logs how long its first call took (the compilation's time) and
+    keeps the seconds in :attr:`compile_s`."""
+
+    def __init__(self, fn: Callable, name: str) -> None:
+        self.fn, self.name = fn, name
+        self.compile_s: float | None = None
+
+    def __call__(self, *args, **kwargs):
+        if self.compile_s is not None:
+            return self.fn(*args, **kwargs)
+        start = time.perf_counter()
+        out = self.fn(*args, **kwargs)
+        self.compile_s = time.perf_counter() - start
+        log.info("torch.compile: %s compiled in %.1f s", self.name, self.compile_s)
+        return out
+
+
+def compile_step(
+    fn: Callable, config: CompileConfig, *, fullgraph: bool = False, name: str | None = None
+) -> Callable:
+    """``torch.compile(fn)`` when ``compile.compile`` (with ``compile.mode``; ``fullgraph``: a
+    graph break is an error), else ``fn``. Compiled code is cached in
+    :func:`inductor_cache_dir`; the first call's time is logged."""
     if not config.compile:
         return fn
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = {"fullgraph": fullgraph}
     if config.mode and config.mode != "default":
         kwargs["mode"] = config.mode
-    return torch.compile(fn, **kwargs)
+    cache = inductor_cache_dir(config)
+    cache.mkdir(parents=True, exist_ok=True)
+    os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(cache.resolve())
+    return _Timed(torch.compile(fn, **kwargs), name or getattr(fn, "__name__", "step"))
+
+
+def compile_seconds(*fns: Callable) -> float:
+    """The seconds the first calls of the compiled ``fns`` took (0 for one not compiled or not
+    called yet)."""
+    return sum(getattr(f, "compile_s", None) or 0.0 for f in fns)
 
 
 def cudagraph_step(fn: Callable, config: CompileConfig, device: str | torch.device) -> Callable:
@@ -53,8 +100,11 @@ def cudagraph_step(fn: Callable, config: CompileConfig, device: str | torch.devi
 
 
 def accelerate(fn: Callable, config: CompileConfig, device: str | torch.device) -> Callable:
-    """:func:`compile_step` then :func:`cudagraph_step` (the sota-implementations' order)."""
-    return cudagraph_step(compile_step(fn, config), config, device)
+    """:func:`cudagraph_step` of a whole update step. What ``compile.compile`` compiles is the
+    step's loss forward (:func:`compile_step` with ``fullgraph``: one graph, its backward through
+    AOTAutograd), not the step: torch's optimisers break the graph on purpose around their
+    ``step``, which runs eagerly (one fused kernel)."""
+    return cudagraph_step(fn, config, device)
 
 
 #: torch.compile modes whose compiled steps run in CUDA graph trees: a step's outputs live in the
@@ -97,9 +147,10 @@ def collector_kwargs(config: CompileConfig) -> dict[str, Any]:
 def optimizer_kwargs(config: CompileConfig, device: str | torch.device) -> dict[str, Any]:
     """Adam/AdamW options: ``capturable`` for a graphed step; the fused kernel of a CPU or a
     CUDA device otherwise (one call for all parameters instead of one per parameter or
-    group); torch's choice (foreach) under ``compile.compile``."""
+    group); the optimiser step runs eagerly under ``compile.compile`` too (see
+    :func:`accelerate`)."""
     if config.cudagraphs:
         return {"capturable": True}
-    if torch.device(device).type in ("cpu", "cuda") and not config.compile:
+    if torch.device(device).type in ("cpu", "cuda"):
         return {"fused": True}
     return {}

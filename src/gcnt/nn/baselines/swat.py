@@ -37,13 +37,7 @@ class TraversalEmbedding(nn.Module):
         self.tables = nn.ModuleList(nn.Embedding(max_limbs, w) for w in widths)
 
     def forward(self, embed: Tensor, traversal: Tensor) -> Tensor:
-        if traversal.device.type == "cpu" and traversal.numel():
-            top = int(traversal.max())
-            if top >= self.max_limbs:
-                raise ValueError(
-                    f"SWAT: traversal position {top} needs a robot with more than "
-                    f"max_limbs={self.max_limbs} limbs (raise max_limbs)"
-                )
+        # positions past max_limbs are refused once per robot table (Backbone.limits)
         pe = torch.cat([t(traversal[..., i]) for i, t in enumerate(self.tables)], -1)
         return embed + as_dtype(pe, embed.dtype)
 
@@ -68,4 +62,5 @@ def swat_backbone(cfg: SWATConfig, io: NetIO, table: TensorDictBase) -> Backbone
         static_keys=(K.TRAVERSAL, K.PPR, K.LAPLACIAN, K.DIST),
         max_limbs=cfg.max_limbs,
         name="SWAT",
+        limits={K.TRAVERSAL: (cfg.max_limbs, "max_limbs")},
     )

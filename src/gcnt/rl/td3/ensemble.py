@@ -132,9 +132,14 @@ class Ensemble(nn.Module):
             params = leaves
         else:
             params = [p[i] for p in stacked]
+        before = [m._parameters[n] for m, n in slots]
         for (m, n), p in zip(slots, params, strict=True):
             m._parameters[n] = p
-        out = then(chain(inputs, robots))
+        try:
+            out = then(chain(inputs, robots))
+        finally:  # the view keeps no slice: under a seeds' vmap, a batched one
+            for (m, n), p in zip(slots, before, strict=True):
+                m._parameters[n] = p
         if not backward:
             return out
         out.backward()
@@ -148,6 +153,13 @@ class Ensemble(nn.Module):
             for leaf in leaves:
                 leaf.grad = None
         return out.detach()
+
+    def views(self) -> None:
+        """Build every member's structural copy now (:meth:`one` builds it at its first call
+        otherwise): a compiled step that calls :meth:`one` must find it built, not trace the
+        copying."""
+        for i in range(self.size):
+            self._view(i)
 
     def _view(self, i: int) -> tuple[nn.Module, TensorChain, list]:
         views = self.__dict__.get("_views")

@@ -62,7 +62,14 @@ from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
 from gcnt.nn.layers import as_dtype
 from gcnt.recipes import Recipe, RecipeError
-from gcnt.rl.accelerate import accelerate, autocast, begin_step, optimizer_kwargs, owned
+from gcnt.rl.accelerate import (
+    accelerate,
+    autocast,
+    begin_step,
+    compile_step,
+    optimizer_kwargs,
+    owned,
+)
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.config_check import check_replay_memory
 from gcnt.rl.device import load_optimizer_state
@@ -137,6 +144,16 @@ class TD3Learner:
             dropout=has_dropout(critics[0]),
             torch_threads=self.accel.torch_threads,
         )
+        # compile.compile: each step's loss forward as one graph (no graph break), its backward
+        # through AOTAutograd; the optimiser tail runs eagerly
+        self.critic_forward = compile_step(
+            self._critic_forward, self.accel, fullgraph=True, name="TD3 critic loss"
+        )
+        self.actor_forward = compile_step(
+            self.actor_loss, self.accel, fullgraph=True, name="TD3 actor loss"
+        )
+        if not pair:
+            self.critics.views()  # built before any compiled call reads them
         self.critic_step = accelerate(self._critic_step, self.accel, self.device)
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
@@ -162,6 +179,8 @@ class TD3Learner:
         shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
         shell.target_actor = copy.deepcopy(self.target_actor)
         shell.target_critics = copy.deepcopy(self.target_critics)
+        if not shell.pair:
+            shell.critics.views()
         shell._chains()
         shell.updates = self.updates
         return shell
@@ -288,9 +307,19 @@ class TD3Learner:
 
     # Both steps take and return TensorDicts (what a CUDA graph captures) and leave no gradient
     # behind (zeroed after the optimiser step, as a captured graph needs).
+    def _critic_forward(self, batch: TensorDictBase, noise: torch.Tensor) -> torch.Tensor:
+        """The critic loss (what ``compile.compile`` compiles): with its graph, or already
+        backpropagated where each critic runs on its own thread."""
+        return self.critic_loss(batch, noise, backward=self.twin.parallel)
+
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
-        """One critic update on ``batch``; returns ``loss_critic``."""
-        loss = self.critic_loss(batch, backward=True)
+        """One critic update on ``batch``; returns ``loss_critic``. The target-smoothing noise
+        is drawn here, outside the compiled loss, so a compiled step draws what eager draws."""
+        o = self.config
+        noise = target_noise(batch.get(ACTION), o.policy_noise, o.noise_clip)
+        loss = self.critic_forward(batch, noise)
+        if not self.twin.parallel:
+            loss.backward()
         apply_gradients(
             self.critic_opt,
             self.critic_params,
@@ -304,7 +333,7 @@ class TD3Learner:
         """One actor update (critic 1 fixed) and the soft target update; returns
         ``loss_actor``."""
         o = self.config
-        loss = self.actor_loss(batch)
+        loss = self.actor_forward(batch)
         # gradients for the actor only (the critic is a fixed function here)
         grads = torch.autograd.grad(loss, self.actor_params, allow_unused=True)
         for p, g in zip(self.actor_params, grads, strict=True):

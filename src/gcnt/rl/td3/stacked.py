@@ -33,7 +33,7 @@ from torch import nn
 from torch.nn.attention import sdpa_kernel
 
 from gcnt.keys import ACTION, MORPH_ID
-from gcnt.rl.accelerate import accelerate, optimizer_kwargs
+from gcnt.rl.accelerate import accelerate, compile_step, optimizer_kwargs
 from gcnt.rl.run_dir import rng_state, set_rng_state
 from gcnt.rl.td3.ensemble import VMAP_SDPA
 from gcnt.rl.td3.learner import (
@@ -135,6 +135,13 @@ class StackedTD3Learner:
         opt_kw = optimizer_kwargs(self.accel, self.device)
         self.actor_opt = torch.optim.Adam(self.actor_leaves, lr=self.config.lr, **opt_kw)
         self.critic_opt = torch.optim.Adam(self.critic_leaves, lr=self.config.lr, **opt_kw)
+        # compile.compile: the seeds' vmapped losses as one graph each (as TD3Learner's)
+        self.critic_forward = compile_step(
+            self._critic_losses, self.accel, fullgraph=True, name="stacked TD3 critic loss"
+        )
+        self.actor_forward = compile_step(
+            self._actor_losses, self.accel, fullgraph=True, name="stacked TD3 actor loss"
+        )
         self.critic_step = accelerate(self._critic_step, self.accel, self.device)
         self.actor_step = accelerate(self._actor_step, self.accel, self.device)
         self.updates = 0
@@ -156,14 +163,24 @@ class StackedTD3Learner:
     # ------------------------------------------------------------------ the two steps
     # As TD3Learner's: TensorDict in and out, no gradient left behind. ``batch`` is [S, N]: each
     # seed's mini-batch and its NOISE; its morph_id rows are alike (checked by stack_batches).
+    def _critic_losses(self, batch: TensorDictBase) -> torch.Tensor:
+        """Every seed's critic loss [S] (what ``compile.compile`` compiles)."""
+        ids = batch.get(MORPH_ID)[0]
+        with sdpa_kernel(VMAP_SDPA):
+            return torch.vmap(self._seed_critic_loss, (0, 0, 0, None))(
+                self.online, self.target, batch, ids
+            )
+
+    def _actor_losses(self, batch: TensorDictBase) -> torch.Tensor:
+        """Every seed's actor loss [S] (critic 1 fixed; compiled as :meth:`_critic_losses`)."""
+        ids = batch.get(MORPH_ID)[0]
+        with sdpa_kernel(VMAP_SDPA):
+            return torch.vmap(self._seed_actor_loss, (0, 0, None))(self.online, batch, ids)
+
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update of every seed; returns ``loss_critic`` [S]."""
         o = self.config
-        ids = batch.get(MORPH_ID)[0]
-        with sdpa_kernel(VMAP_SDPA):
-            loss = torch.vmap(self._seed_critic_loss, (0, 0, 0, None))(
-                self.online, self.target, batch, ids
-            )
+        loss = self.critic_forward(batch)
         loss.sum().backward()  # the seeds share no parameter: each gets its own gradient
         apply_gradients(
             self.critic_opt, self.critic_leaves, o.max_grad_norm, clip_grad_norm_per_seed
@@ -174,9 +191,8 @@ class StackedTD3Learner:
         """One actor update of every seed (critic 1 fixed) and the soft target update; returns
         ``loss_actor`` [S]."""
         o = self.config
-        ids = batch.get(MORPH_ID)[0]
+        loss = self.actor_forward(batch)
         with sdpa_kernel(VMAP_SDPA):
-            loss = torch.vmap(self._seed_actor_loss, (0, 0, None))(self.online, batch, ids)
             grads = torch.autograd.grad(loss.sum(), self.actor_leaves, allow_unused=True)
         # contiguous, as backward() would lay them out: vmap returns some gradients strided, and
         # CPU's fused Adam then read them in the wrong order (seen with torch 2.13)
