@@ -43,6 +43,7 @@ from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of, train_robots
 from gcnt.rl.run_dir import (
+    CHECKPOINT_MISFITS,
     CheckpointError,
     RunDir,
     check_logger,
@@ -389,13 +390,19 @@ def resume_checkpoint(run: RunDir, algo: Algorithm) -> int:
     state = run.load_checkpoint()
     try:
         algo.load_state_dict(state["learner"])
-    except (ValueError, RuntimeError, KeyError) as e:
+    except CHECKPOINT_MISFITS as e:
         raise CheckpointError(
             f"{run.checkpoint_path} does not fit the recipe's networks (was the recipe "
             f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
         ) from None
     env_steps = state["env_steps"]
-    set_rng_state(state["rng"])
+    try:
+        set_rng_state(state["rng"])
+    except CHECKPOINT_MISFITS as e:
+        raise CheckpointError(
+            f"{run.checkpoint_path}: its random state is not one gcnt wrote "
+            f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})"
+        ) from None
     if state.get("has_buffers"):
         algo.load_buffers(run.buffers_dir)
     run.truncate_metrics(env_steps)
