@@ -143,3 +143,79 @@ def test_the_multi_collectors_first_iteration_is_normalised(tmp_path: Path):
         assert torch.equal(norm.count, seen)
     finally:
         prepared.env.close()
+
+
+@pytest.mark.slow
+def test_a_worker_that_dies_as_it_starts_up_ends_the_run_in_one_line(tmp_path: Path):
+    """No torchrl traceback, and the process ends: nothing waits at exit for the half-built
+    collector's workers or threads."""
+    import os
+
+    d = tiny_recipe(tmp_path / "unused", collector="multi", workers=2).to_dict()
+    d.pop("run_dir", None)
+    path = tmp_path / "multi.yaml"
+    path.write_text(yaml.safe_dump(d))
+    run = tmp_path / "run"
+    code = (
+        "import sys\n"
+        "import cli_helpers, gcnt.rl.ppo.learner as learner\n"
+        "from gcnt.cli import main\n"
+        "learner.make_worker_env = cli_helpers.dying_worker_env\n"
+        "sys.exit(main(['train', sys.argv[1], 'run_dir=' + sys.argv[2]]))\n"
+    )
+    tests = str(Path(__file__).parent)
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(path), str(run)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([tests, *sys.path])},
+    )
+    lines = [x for x in proc.stderr.splitlines() if x.startswith("gcnt train: error:")]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert len(lines) == 1 and "killed by SIGKILL" in lines[0], proc.stderr[-3000:]
+    assert "while starting up" in lines[0] and "run the same command again" in lines[0]
+    assert not run.exists()  # nothing of value was made
+
+
+def _workers(proc: subprocess.Popen) -> list[int]:
+    children = subprocess.run(
+        ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
+    ).stdout.split()
+    return [int(c) for c in children if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
+
+
+@pytest.mark.slow
+def test_a_stopped_worker_ends_the_run_in_one_line(tmp_path: Path):
+    """A worker stopped by SIGSTOP (it never answers) ends the run once it has been stopped for
+    STOPPED_WORKER_S, in one line naming --resume; no worker is left behind."""
+    import os
+
+    proc, run = _endless_run(tmp_path)
+    try:
+        workers = _workers(proc)
+        os.kill(workers[0], signal.SIGSTOP)
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    lines = [x for x in stderr.splitlines() if x.startswith("gcnt train: error:")]
+    assert proc.returncode == 2 and "Traceback" not in stderr, stderr[-3000:]
+    assert len(lines) == 1 and "collector worker" in lines[0], stderr[-3000:]
+    assert "has been stopped" in lines[0] and f"gcnt train --resume {run}" in lines[0]
+    assert not any(Path(f"/proc/{w}").exists() for w in workers)
+
+
+@pytest.mark.slow
+def test_sigterm_while_a_worker_is_stopped_still_checkpoints(tmp_path: Path):
+    import os
+
+    proc, run = _endless_run(tmp_path)
+    try:
+        os.kill(_workers(proc)[0], signal.SIGSTOP)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == EXIT_STOPPED, stderr[-3000:]
+    assert "stopped by SIGTERM: checkpoint of" in stderr and "Traceback" not in stderr
+    assert RunDir(run).has_checkpoint()

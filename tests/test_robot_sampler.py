@@ -8,7 +8,13 @@ the trainer's updates.
 import numpy as np
 import pytest
 
-from gcnt.rl.ppo.robot_sampler import RobotDraw, RobotSampler, shared_probs
+from gcnt.rl.ppo.robot_sampler import (
+    PROBS_PREFIX,
+    RobotDraw,
+    RobotSampler,
+    remove_stale_probs,
+    shared_probs,
+)
 
 
 def test_robot_sampler_uniform_then_inverse_episode_length():
@@ -44,3 +50,15 @@ def test_robot_draw_pickles_as_a_view_of_the_shared_probabilities():
         probs[:] = [0.0, 0.0, 1.0, 0.0]
         assert d(np.arange(5)).tolist() == [2] * 5
         probs[:] = 0.25
+
+
+def test_a_stale_probabilities_name_that_cannot_be_removed_stops_nothing(tmp_path):
+    """A folder (or another user's file) under the name of a dead process's probabilities file
+    is left where it is; the removal of the others goes on."""
+    gone = 999_999_999  # above any pid: no such process
+    blocked = tmp_path / f"{PROBS_PREFIX}{gone}-a.f64"
+    blocked.mkdir()  # unlink fails on it
+    stale = tmp_path / f"{PROBS_PREFIX}{gone}-b.f64"
+    stale.write_bytes(b"\0" * 8)
+    remove_stale_probs(str(tmp_path))
+    assert blocked.is_dir() and not stale.exists()

@@ -120,8 +120,8 @@ def test_a_failed_checkpoint_write_keeps_the_last_one_and_leaves_no_temp_file(
     run.save_checkpoint({"env_steps": 1})
     good = run.checkpoint_path.read_bytes()
 
-    def full_disk(obj, path, *args, **kwargs):
-        Path(path).write_bytes(b"partial")
+    def full_disk(obj, f, *args, **kwargs):  # into the writer's temporary file
+        f.write(b"partial")
         raise error
 
     monkeypatch.setattr(torch, "save", full_disk)
@@ -150,20 +150,23 @@ def test_a_full_disk_while_training_is_one_line(recipe_file, tmp_path, capsys, m
     assert "No space left on device" in line and "last good checkpoint" in line
     monkeypatch.setattr(torch, "save", save)
     assert RunDir(run).load_checkpoint()["env_steps"] == 20
-    assert not (run / "checkpoints" / "last.tmp").exists()
+    assert not list((run / "checkpoints").glob(".tmp-*"))  # the writer's temporary file
 
 
 def _read_only(monkeypatch, run: Path) -> None:
-    """Writes under ``run`` fail as in a read-only directory (root ignores chmod)."""
-    for method in ("write_text", "write_bytes"):
-        real = getattr(Path, method)
+    """Writes under ``run`` fail as in a read-only directory (root ignores chmod): the guarded
+    writer cannot create its files there."""
+    import gcnt.files
 
-        def refuse(self, *args, real=real, **kwargs):
-            if str(self).startswith(str(run)):
-                raise OSError(errno.EROFS, "Read-only file system", str(self))
-            return real(self, *args, **kwargs)
+    for name in ("_create_temp", "_open_existing_or_new"):
+        real = getattr(gcnt.files, name)
 
-        monkeypatch.setattr(Path, method, refuse)
+        def refuse(path, *args, real=real, **kwargs):
+            if str(path).startswith(str(run)):
+                raise OSError(errno.EROFS, "Read-only file system", str(path))
+            return real(path, *args, **kwargs)
+
+        monkeypatch.setattr(gcnt.files, name, refuse)
 
 
 def test_eval_of_a_read_only_run_still_writes_json_elsewhere(

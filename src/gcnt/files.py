@@ -3,16 +3,26 @@ replay file, a metrics log. Each is opened without blocking (a FIFO does not wai
 so stop signals keep working), checked to be a regular file (not a FIFO, a device such as
 ``/dev/zero`` behind a symlink, a socket or a directory) of at most a size that fits what it
 claims to be, and only then read. The refusal is the caller's own error type, one line naming
-the file and never quoting it."""
+the file and never quoting it.
+
+Writing files into folders someone else may have prepared: every file gcnt writes is first a
+temporary file created exclusively in the target's folder (never through a link), which
+replaces the target only where that is absent or a regular file; logs and lock files are
+opened without following a link or waiting on a FIFO, and refused unless regular. What is
+refused is a :class:`NotRegularFileError`: nothing is written through a link or onto a
+device, a FIFO or a folder that gcnt did not make."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
+import secrets
 import stat
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TextIO
 
 KiB, MiB, GiB = 1 << 10, 1 << 20, 1 << 30
 #: the most read at once
@@ -138,20 +148,212 @@ def read_yaml(path: str | Path, max_bytes: int, what: str, error: type[Exception
     return parse_yaml(read_text(path, max_bytes, what, error), path, what, error)
 
 
-def write_text(path: str | Path, text: str) -> None:
-    """``Path(path).write_text(text)``, whose OSError names ``path`` even when the write
-    itself fails (a full disk fails in ``write``, and such an error names no file)."""
-    write_bytes(path, text.encode("utf-8"))
+# --- writing
+
+
+class NotRegularFileError(FileExistsError):
+    """Something other than a regular file (a link, a FIFO, a device, a folder) is where gcnt
+    would write: it is neither written through nor replaced. An OSError (``strerror`` says
+    what is there), a FileExistsError for the CLI: one line, exit 2."""
+
+    def __init__(self, path: str | Path, kind: str):
+        super().__init__(errno.EEXIST, f"{kind}, not a regular file", str(path))
+        self.kind = kind
+
+    def __str__(self) -> str:
+        return (
+            f"{self.filename}: {self.kind}, not a regular file; gcnt neither writes through "
+            "nor replaces it (remove it, or give another path)"
+        )
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def check_replaceable(path: str | Path) -> None:
+    """A :class:`NotRegularFileError` unless ``path`` is absent or a regular file (not
+    following a link: a link itself is refused)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(st.st_mode):
+        raise NotRegularFileError(path, _kind(st.st_mode))
+
+
+#: flags of every file gcnt creates or opens to write: a link is never followed, a FIFO never
+#: waited on, a descriptor never inherited by a child process
+_NEW = os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+_OPEN = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+_TMP = ".tmp-"
+
+
+def _create_temp(path: Path) -> tuple[int, Path]:
+    """A new, empty file beside ``path`` (in its folder), created exclusively under a name no
+    other process uses (``.tmp-<pid>-<random>.<name>``: the suffix kept for writers that go by
+    it), and its descriptor."""
+    for _ in range(100):
+        tmp = path.with_name(f"{_TMP}{os.getpid()}-{secrets.token_hex(4)}.{path.name}")
+        try:
+            return os.open(tmp, os.O_WRONLY | _NEW, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))
+
+
+def _name_errors(path: str | Path, e: OSError) -> OSError:
+    if e.filename is None or Path(e.filename).name.startswith(_TMP):
+        e.filename = str(path)  # the target, not the temporary file, is what failed
+    return e
+
+
+@contextlib.contextmanager
+def temp_path(path: str | Path) -> Iterator[Path]:
+    """A temporary file for ``path``, created exclusively in its folder, for a writer that
+    takes a path (a video encoder): once the block ends without error it replaces ``path``
+    (only an absent or regular file, :func:`check_replaceable`), else it is removed. An
+    OSError names ``path``."""
+    path = Path(path)
+    check_replaceable(path)
+    try:
+        fd, tmp = _create_temp(path)
+        os.close(fd)
+    except OSError as e:
+        raise _name_errors(path, e) from None
+    try:
+        yield tmp
+        check_replaceable(path)
+        os.replace(tmp, path)
+    except BaseException as e:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise _name_errors(path, e) from None
+        raise
+
+
+@contextlib.contextmanager
+def writing(path: str | Path) -> Iterator[BinaryIO]:
+    """A binary file to write ``path``'s new content into, atomically: a temporary file
+    created exclusively in ``path``'s folder (never through a link), which replaces ``path``
+    (only an absent or regular file) once the block ends without error; on an error it is
+    removed and ``path`` is kept as it was. An OSError names ``path``."""
+    with temp_path(path) as tmp:
+        fd = os.open(tmp, os.O_WRONLY | _OPEN)
+        with open(fd, "wb") as f:
+            yield f
 
 
 def write_bytes(path: str | Path, data: bytes) -> None:
-    """``Path(path).write_bytes(data)``; an OSError names ``path`` (see :func:`write_text`)."""
+    """Write ``data`` to ``path`` atomically (:func:`writing`)."""
+    with writing(path) as f:
+        f.write(data)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`writing`)."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def save_torch(obj: Any, path: str | Path) -> None:
+    """``torch.save(obj)`` to ``path`` atomically (:func:`writing`)."""
+    import torch
+
+    with writing(path) as f:
+        torch.save(obj, f)
+
+
+def rename(src: str | Path, dst: str | Path) -> None:
+    """Move ``src`` to ``dst`` (same folder), which must be absent or a regular file."""
+    check_replaceable(dst)
+    os.replace(src, dst)
+
+
+def _open_existing_or_new(path: str | Path, flags: int) -> int:
+    """A descriptor of the regular file ``path`` (created if absent), opened with ``flags``
+    without following a link or waiting on a FIFO; else a :class:`NotRegularFileError`."""
     try:
-        Path(path).write_bytes(data)
+        fd = os.open(path, flags | os.O_CREAT | _OPEN, 0o666)
     except OSError as e:
-        if e.filename is None:
-            e.filename = str(path)
-        raise
+        if e.errno in (errno.ELOOP, errno.ENXIO, errno.EISDIR, errno.EMLINK):
+            check_replaceable(path)
+        raise _name_errors(path, e) from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise NotRegularFileError(path, _kind(st.st_mode))
+    os.set_blocking(fd, True)
+    return fd
+
+
+def open_lock(path: str | Path) -> int:
+    """A read-write descriptor of the lock file ``path`` (created if absent), which must be a
+    regular file: a link, a FIFO or a device is a :class:`NotRegularFileError`, nothing is
+    opened through it or truncated."""
+    return _open_existing_or_new(path, os.O_RDWR)
+
+
+def open_append(path: str | Path) -> TextIO:
+    """``path`` opened to append UTF-8 text to (created if absent: a log), a regular file only
+    (see :func:`open_lock`)."""
+    return open(_open_existing_or_new(path, os.O_WRONLY | os.O_APPEND), "a", encoding="utf-8")
+
+
+def append_text(path: str | Path, text: str) -> None:
+    """Append ``text`` to ``path`` (:func:`open_append`)."""
+    with open_append(path) as f:
+        f.write(text)
+
+
+def check_output(path: str | Path) -> None:
+    """A :class:`NotRegularFileError` where :func:`write_output` would refuse ``path`` by its
+    kind (a folder, a socket): checked before the work whose output it is."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
+        raise NotRegularFileError(path, _kind(st.st_mode))
+
+
+def write_output(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to an output the user named: a regular file (or an absent one) is
+    written atomically, through the links the user gave (:func:`writing` at the real path); a
+    device or a FIFO with a reader is written into (``/dev/null``, ``/dev/stdout``); anything
+    else (a folder, a socket, a FIFO that nobody reads) is a :class:`NotRegularFileError`.
+    Nothing but a regular file is ever replaced."""
+    real = Path(os.path.realpath(path))
+    try:
+        st = os.stat(real)
+    except FileNotFoundError:
+        st = None
+    if st is None or stat.S_ISREG(st.st_mode):
+        write_bytes(real, data)
+        return
+    if not (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
+        raise NotRegularFileError(path, _kind(st.st_mode))
+    try:
+        fd = os.open(real, os.O_WRONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError as e:
+        if e.errno == errno.ENXIO:  # a FIFO with no reader
+            raise NotRegularFileError(path, "a FIFO that nobody reads") from None
+        raise _name_errors(path, e) from None
+    os.set_blocking(fd, True)
+    with open(fd, "wb") as f:
+        f.write(data)
 
 
 def _size(n: int) -> str:

@@ -31,7 +31,7 @@ from typing import Any
 
 import gcnt
 from gcnt import plugins
-from gcnt.files import MiB, read_json, write_text
+from gcnt.files import MiB, read_json, rename, write_text
 
 log = logging.getLogger(__name__)
 
@@ -191,13 +191,11 @@ def add_session(run_dir: str | Path, session: dict[str, Any] | None = None) -> P
         sessions = read_sessions(run_dir)
     except ProvenanceError as e:
         aside = path.with_name(PROVENANCE_FILE + ".unreadable")
-        os.replace(path, aside)
+        rename(path, aside)
         log.warning("%s; kept as %s, a new list of sessions begins", e, aside)
         sessions = []
     sessions.append(session if session is not None else collect())
-    tmp = path.with_suffix(".tmp")
-    write_text(tmp, json.dumps({"sessions": sessions}, indent=1) + "\n")
-    os.replace(tmp, path)
+    write_text(path, json.dumps({"sessions": sessions}, indent=1) + "\n")
     return path
 
 

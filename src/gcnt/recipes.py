@@ -705,9 +705,14 @@ def find_recipe(spec: str | Path) -> Path:
     from gcnt.data_folders import packaged_recipes
 
     path = Path(spec)
+    name = path.as_posix().removeprefix("./").removeprefix("recipes/")
+    if path.is_dir() and not path.is_absolute() and (packaged_recipes() / f"{name}.yaml").is_file():
+        raise RecipeError(
+            f"{spec}: a folder here, and a recipe that ships with gcnt: give recipes/{name}.yaml "
+            f"for gcnt's recipe, or the path of a recipe file in the folder ({spec}/<file>.yaml)"
+        )
     if path.exists() or path.is_absolute():
         return path
-    name = path.as_posix().removeprefix("./").removeprefix("recipes/")
     for candidate in (name, f"{name}.yaml"):
         packaged = packaged_recipes() / candidate
         if candidate.endswith(".yaml") and packaged.is_file():

@@ -22,6 +22,7 @@ seeds, ``robots`` the robots averaged per seed (1 for ordinary runs).
 from __future__ import annotations
 
 import csv
+import io
 import logging
 from collections import defaultdict
 from collections.abc import Sequence
@@ -38,6 +39,7 @@ from gcnt.analysis.runs import (
     protocols_text,
     score,
 )
+from gcnt.files import write_text
 
 log = logging.getLogger(__name__)
 
@@ -259,12 +261,11 @@ def random_phase(runs: Sequence[Run]) -> dict[str, list[int]]:
 
 def write_csv(rows: Sequence[dict], path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=CSV_FIELDS)
-        w.writeheader()
-        w.writerows(
-            {k: row.get(k, 1 if k == "robots" else None) for k in CSV_FIELDS} for row in rows
-        )
+    text = io.StringIO(newline="")
+    w = csv.DictWriter(text, fieldnames=CSV_FIELDS)
+    w.writeheader()
+    w.writerows({k: row.get(k, 1 if k == "robots" else None) for k in CSV_FIELDS} for row in rows)
+    write_text(path, text.getvalue())
     return path
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.analysis.names import display_name
+from gcnt.files import writing
 
 #: the file formats a figure can be written in
 FORMATS = ("png", "pdf", "svg")
@@ -109,7 +110,13 @@ class FigureStyle:
             with self.context():
                 for p in paths:
                     p.parent.mkdir(parents=True, exist_ok=True)
-                    fig.savefig(p, dpi=self.dpi, bbox_inches="tight")
+                    with writing(p) as f:
+                        fig.savefig(
+                            f,
+                            format=p.suffix[1:].lower() or None,
+                            dpi=self.dpi,
+                            bbox_inches="tight",
+                        )
         finally:
             plt.close(fig)
         return paths

@@ -142,6 +142,10 @@ def run(args: argparse.Namespace) -> int:
     episodes = args.episodes if args.episodes is not None else default_episodes(deterministic)
     if episodes < 1:
         raise RecipeError(f"--episodes must be >= 1, got {episodes}")
+    if args.json:  # a folder or a socket there: refused before the evaluation
+        from gcnt.files import check_output
+
+        check_output(args.json)
     specs: list[str] = []
     for spec in args.robots:
         if spec == "test":
@@ -169,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     check_benchmark(recipe, robots, f"--robots of run {run_dir.path}")
     run_dir.check_links()  # a link out of the run directory is refused before any work
     state = run_dir.load_checkpoint()
+    if "policy" not in state and "actor" not in state:
+        raise CheckpointError(f"{run_dir.checkpoint_path}: no policy; not a checkpoint gcnt wrote")
     policy = state.get("policy") or {"actor": state["actor"]}  # "actor": checkpoints before 0.2
     if args.video:
         return _videos(recipe, run_dir, policy, robots, state["env_steps"], args.video_steps)
@@ -199,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
     except RunDirError as e:  # a read-only or full run directory: --json is still written
         failed = e
     if args.json:
-        print(f"written: {write_eval(Path(args.json), results, steps, meta)}")
+        print(f"written: {write_eval(Path(args.json), results, steps, meta, named=True)}")
     if failed is not None and not args.json:
         raise RunDirError(f"{failed}; the results are printed above (--json PATH keeps them)")
     if failed is not None:

@@ -101,8 +101,6 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
             own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
             run_dir = RunDir.for_recipe(recipe)
             resume = False
-            if not run_dir.path.exists():
-                made.append(run_dir)
             if run_dir.path.is_dir():  # a second writer stops before the build below
                 run_dir.check_new()  # a run there is refused without a trace left
                 held.enter_context(run_lock(run_dir.path))
@@ -112,6 +110,8 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
             run_dir.check_links()
         # robots, env and networks are built (and bad input reported) before anything is written
         prepared = prepare(recipe, resume=resume)
+        if not args.resume and run_dir.claim():  # made here: this process's to remove
+            made.append(run_dir)
         held.enter_context(run_lock(run_dir.path))
         if not args.resume:
             run_dir.create(recipe)  # with the provenance of the code now running

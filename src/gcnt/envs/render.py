@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
+from gcnt.files import temp_path
 from gcnt.morphology import Robot
 
 log = logging.getLogger(__name__)
@@ -206,7 +207,11 @@ def render_rollout(
     filming = Filming(env, index, camera, width, height)
     t = 0
     try:
-        with imageio.get_writer(path, fps=1.0 / (dt * every)) as writer, torch.no_grad():
+        with (
+            temp_path(path) as tmp,
+            imageio.get_writer(tmp, fps=1.0 / (dt * every)) as writer,
+            torch.no_grad(),
+        ):
             td = env.reset()
             # each frame shows the state before a step; the state the episode ends in is not
             # filmed, as the env resets the sub-env in the same call

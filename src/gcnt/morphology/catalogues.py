@@ -117,6 +117,7 @@ _BUILTIN: dict[str, str] = {
 
 def _clear_caches() -> None:
     _usable_imports.cache_clear()
+    _warn_shadowing.cache_clear()
     _name_index.cache_clear()
     _file_index.cache_clear()
     _load.cache_clear()
@@ -156,6 +157,8 @@ def imported_catalogues(root: Path | None = None) -> dict[str, Path]:
     benchmark names are already those of a catalogue before it (a backup copy of an imported
     folder, say), with a warning naming both folders."""
     roots = [root] if root is not None else [packaged_morphologies(), user_morphologies()]
+    if root is None:
+        _warn_shadowing(user_morphologies())
     found = [
         p.parent for r in roots for p in sorted(Path(r).absolute().glob(f"*/{IMPORTED_INDEX}"))
     ]
@@ -201,15 +204,20 @@ def _import_damage(folder: Path, robots: Sequence[str]) -> str | None:
 def _usable_imports(folders: tuple[Path, ...]) -> dict[str, Path]:
     from gcnt.morphology.unimal.imported import imported_catalogue
 
-    owner: dict[str, str] = {}  # robot or benchmark name -> what defines it
+    owner: dict[str, str] = {}  # robot name -> what defines it
+    #: catalogue and benchmark names, case-folded (one name whatever its case) -> what defines it
+    named: dict[str, str] = {}
     for name in [*_BUILTIN, *_REGISTRY]:
         cat = get_catalogue(name)
         try:
             split = cat.split_path()
         except FileNotFoundError:
             split = None
-        for key in [*cat.robot_names(), *split_keys(split)]:
+        named.setdefault(name.casefold(), f"catalogue {name!r}")
+        for key in cat.robot_names():
             owner.setdefault(key, f"catalogue {name!r}")
+        for key in split_keys(split):
+            named.setdefault(key.casefold(), f"catalogue {name!r}")
     out: dict[str, Path] = {}
     for folder in folders:
         cat = imported_catalogue(folder)
@@ -222,21 +230,44 @@ def _usable_imports(folders: tuple[Path, ...]) -> dict[str, Path]:
                 damage,
             )
             continue
-        keys = [*robots, *split_keys(folder / IMPORTED_INDEX)]
-        clash = next((k for k in keys if k in owner), None)
-        if folder.name in owner or folder.name in out or clash is not None:
-            what = clash if clash is not None else folder.name
+        names = [folder.name, *split_keys(folder / IMPORTED_INDEX)]
+        clash = next((k for k in [folder.name, *robots] if k in owner), None)
+        if clash is not None:
+            by = owner[clash]
+        elif (clash := next((k for k in names if k.casefold() in named), None)) is not None:
+            by = named[clash.casefold()]
+        if clash is not None:
             log.warning(
-                "%s is left out: %r is already defined by %s; remove or rename one of them",
+                "%s is left out: %r is already defined by %s (catalogue and benchmark names "
+                "are one whatever their case); remove or rename one of them",
                 folder,
-                what,
-                owner.get(what, f"catalogue {folder.name!r}"),
+                clash,
+                by,
             )
             continue
         out[folder.name] = folder
-        for key in keys:
-            owner[key] = str(folder)
+        owner.update((key, str(folder)) for key in robots)
+        named.update((key.casefold(), str(folder)) for key in names)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _warn_shadowing(root: Path) -> None:
+    """A warning for each folder of the user's robot-set folder ``root`` named after a built-in
+    catalogue (whatever its case): gcnt never reads it as that catalogue."""
+    try:
+        entries = sorted(p for p in root.iterdir() if p.is_dir())
+    except OSError:
+        return
+    for folder in entries:
+        same = next((b for b in _BUILTIN if b.casefold() == folder.name.casefold()), None)
+        if same is not None:
+            log.warning(
+                "%s is not read: %r is gcnt's built-in catalogue, whose robots come with gcnt; "
+                "give a robot set of your own a name of its own",
+                folder,
+                same,
+            )
 
 
 def catalogue_names() -> list[str]:
@@ -429,8 +460,12 @@ def load_benchmarks(
     out: dict[str, dict[str, list[str]]] = {}
     for p in paths:
         for bench, splits in _read_benchmarks(p).items():
-            if bench in out:
-                raise BenchmarkFileError(f"{p}: benchmark {bench!r} is also defined elsewhere")
+            same = next((b for b in out if b.casefold() == bench.casefold()), None)
+            if same is not None:
+                also = "" if same == bench else f" (as {same!r}: names are one whatever their case)"
+                raise BenchmarkFileError(
+                    f"{p}: benchmark {bench!r} is also defined elsewhere{also}"
+                )
             out[bench] = {s: list(r) for s, r in splits.items()}
     return out
 

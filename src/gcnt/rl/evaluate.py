@@ -13,7 +13,6 @@ start pose its task's termination rule reads as a fall).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import math
@@ -24,14 +23,14 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from gcnt.files import write_text
+from gcnt.files import write_output, write_text
 from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe, run_robot_specs
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.device import on_device
 from gcnt.rl.factories import base_env, make_env
-from gcnt.rl.run_dir import RunDirError, strict_json
+from gcnt.rl.run_dir import CHECKPOINT_MISFITS, RunDirError, strict_json
 
 log = logging.getLogger(__name__)
 
@@ -112,9 +111,9 @@ def evaluate(
     env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
     try:
         actor = acting_policy(recipe, policy_state, env, deterministic)
-    except (ValueError, RuntimeError, KeyError) as e:
+    except CHECKPOINT_MISFITS as e:
         env.close()
-        if type(e) in (ValueError, RuntimeError, KeyError):  # not a named error of its own
+        if type(e) in CHECKPOINT_MISFITS:  # not a named error of its own
             raise PolicyMismatchError(
                 "the checkpoint's policy does not fit the recipe's network (was the recipe "
                 f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
@@ -208,24 +207,29 @@ def summarize(returns: Sequence[float], lengths: Sequence[int] | None = None) ->
 
 
 def write_eval(
-    path: Path, results: dict[str, dict], env_steps: int | None = None, meta: dict | None = None
+    path: Path,
+    results: dict[str, dict],
+    env_steps: int | None = None,
+    meta: dict | None = None,
+    *,
+    named: bool = False,
 ) -> Path:
     """Write results as ``{"env_steps", **meta, "robots": {name: summary}}`` (atomically), as
     strict JSON: a non-finite value (the standard error of one episode) is ``null``. A failed
     write (no permission, a full disk) leaves no temporary file and is a RunDirError naming
-    ``path``."""
+    ``path``. ``named``: a path the user named (``--json``), which may be a device or a FIFO
+    (:func:`gcnt.files.write_output`)."""
     out = {"env_steps": env_steps, **(meta or {}), "robots": results}
     if results:
         out["over_robots"] = summarize_robots(results)
     text = json.dumps(strict_json(out), indent=1, allow_nan=False)
-    tmp = path.with_suffix(".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_text(tmp, text)
-        tmp.replace(path)
+        if named:
+            write_output(path, text.encode("utf-8"))
+        else:
+            write_text(path, text)
     except OSError as e:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
         raise RunDirError(f"{path}: cannot write the evaluation ({e.strerror or e})") from None
     return path
 

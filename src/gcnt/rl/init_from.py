@@ -83,13 +83,20 @@ def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
             f"{where}: its checkpoint is a {state['algo']} learner, this recipe has "
             f"algo={recipe.algo}"
         )
+    from gcnt.rl.run_dir import CHECKPOINT_MISFITS, CheckpointError
+
     try:
         algo.start_from(state["learner"])
-    except (ValueError, KeyError) as e:
+    except CHECKPOINT_MISFITS as e:
         if isinstance(e, RecipeError):
             raise
         detail = str(e).splitlines()[0] if str(e) else repr(e)
-        raise RecipeError(f"{where}: {detail}") from None
+        if isinstance(e, ValueError | KeyError):  # a network of other sizes: the recipe's
+            raise RecipeError(f"{where}: {detail} ({source.checkpoint_path})") from None
+        raise CheckpointError(
+            f"{source.checkpoint_path}: does not fit this recipe's networks ({where}): "
+            f"{type(e).__name__}: {detail}"
+        ) from None
     return {
         "run": str(source.path.resolve()),
         "task": source_recipe.task,

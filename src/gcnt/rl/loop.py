@@ -43,6 +43,7 @@ from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of, train_robots
 from gcnt.rl.run_dir import (
+    CHECKPOINT_MISFITS,
     CheckpointError,
     RunDir,
     check_logger,
@@ -82,23 +83,97 @@ def _dead_worker(collector: Any, run: RunDir) -> WorkerDiedError | None:
     return None
 
 
+#: how long a collector worker may stay stopped (SIGSTOP, SIGTSTP) before the run ends
+STOPPED_WORKER_S = 10.0
+#: how long a requested stop waits for a batch before it checkpoints without it (below Slurm's
+#: default 30 s between SIGTERM and SIGKILL); with a stopped worker it waits no longer
+STOP_WAIT_S = 20.0
+
+
+class StopWhileWaiting(Exception):
+    """A stop was requested while the main thread waits for a batch that does not come (a
+    worker is stopped, or :data:`STOP_WAIT_S` passed): checkpoint without it."""
+
+
+class Waiting:
+    """Whether the main thread waits for the collector's workers now (not in an update)."""
+
+    def __init__(self) -> None:
+        self.on = False
+
+    def batches(self, collector: Any) -> Iterator[Any]:
+        """``collector``'s batches, marked as waited for while each is awaited."""
+        it = iter(collector)
+        while True:
+            with self:
+                try:
+                    data = next(it)
+                except StopIteration:
+                    return
+            yield data
+
+    def __enter__(self) -> Waiting:
+        self.on = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.on = False
+
+
+def _stopped_workers(collector: Any) -> list[int]:
+    """The indices of ``collector``'s worker processes that are stopped (state ``T``)."""
+    out = []
+    for i, proc in enumerate(getattr(collector, "procs", None) or []):
+        try:
+            text = Path(f"/proc/{proc.pid}/stat").read_bytes().decode(errors="replace")
+        except (OSError, ValueError, TypeError):
+            continue
+        state = text.rpartition(")")[2].split()[:1]
+        if state and state[0] in ("T", "t"):
+            out.append(i)
+    return out
+
+
 @contextlib.contextmanager
-def worker_watch(collector: Any, run: RunDir, every: float = 1.0):
+def worker_watch(collector: Any, run: RunDir, every: float = 1.0, waiting: Waiting | None = None):
     """While the block runs, check ``collector``'s worker processes every ``every`` seconds (a
     SIGALRM timer, which also interrupts a wait inside the collector) and raise the
-    :class:`WorkerDiedError` of one that ended there, wherever the main thread waits for it
-    (its batch, or its acknowledgement of new weights). Only in the main thread."""
+    :class:`WorkerDiedError` of one that ended there, or that has been stopped (SIGSTOP) for
+    :data:`STOPPED_WORKER_S`, wherever the main thread waits for it (its batch, or its
+    acknowledgement of new weights). A stop requested while the main thread waits (per
+    ``waiting``) for a stopped worker, or for :data:`STOP_WAIT_S`, raises
+    :class:`StopWhileWaiting`. Only in the main thread."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    stopped_since: dict[int, float] = {}
+    stop_seen: list[float] = []
 
     def check(signum, frame):
+        now = time.monotonic()
         dead = _dead_worker(collector, run)
+        stopped = _stopped_workers(collector)
+        for i in list(stopped_since):
+            if i not in stopped:
+                del stopped_since[i]
+        for i in stopped:
+            since = stopped_since.setdefault(i, now)
+            if dead is None and now - since >= STOPPED_WORKER_S:
+                dead = WorkerDiedError(
+                    f"collector worker {i} has been stopped (SIGSTOP?) for "
+                    f"{STOPPED_WORKER_S:.0f} s; what was checkpointed is kept: continue with "
+                    f"gcnt train --resume {run.path}"
+                )
         if dead is not None:
             signal.setitimer(signal.ITIMER_REAL, 0)
             raise dead
+        if stop.requested() and waiting is not None and waiting.on:
+            stop_seen.append(now)
+            if stopped or now - stop_seen[0] >= STOP_WAIT_S:
+                signal.setitimer(signal.ITIMER_REAL, 0)
+                raise StopWhileWaiting
 
     previous = signal.signal(signal.SIGALRM, check)
     signal.setitimer(signal.ITIMER_REAL, every, every)
@@ -110,12 +185,14 @@ def worker_watch(collector: Any, run: RunDir, every: float = 1.0):
 
 
 def _end_workers(collector: Any) -> None:
-    """End the worker processes still alive beside a dead one (SIGTERM, then SIGKILL)."""
+    """End the worker processes still alive beside a dead one (SIGTERM, then SIGKILL; a
+    stopped one, which SIGTERM would not reach, SIGKILL at once)."""
     procs = [p for p in getattr(collector, "procs", None) or [] if not getattr(p, "_closed", False)]
-    for proc in procs:
+    stopped = set(_stopped_workers(collector))
+    for i, proc in enumerate(procs):
         with contextlib.suppress(ValueError, OSError):
             if proc.is_alive():
-                proc.terminate()
+                proc.kill() if i in stopped else proc.terminate()
     for proc in procs:
         with contextlib.suppress(ValueError, OSError):
             proc.join(10)
@@ -287,7 +364,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
     if env_steps < total:
         settings = algo.collect_settings(env_steps)
         multi = settings.env_makers is not None
-        collector = make_collector(recipe, env, settings)
+        collector = start_collector(recipe, env, settings, run)
         if multi:
             env.close()  # the workers build their own envs
         bar = progress_bar(recipe, total, env_steps)
@@ -295,8 +372,10 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
         with logging_redirect_tqdm(loggers=[logging.getLogger("gcnt")]):
             try:
                 # a worker that dies while the loop waits for it ends the wait (worker_watch)
-                with worker_watch(collector, run) if multi else contextlib.nullcontext():
-                    for data in collector:
+                waiting = Waiting()
+                watch = worker_watch(collector, run, waiting=waiting)
+                with watch if multi else contextlib.nullcontext():
+                    for data in waiting.batches(collector):
                         data = algo.admit(data)  # the steps the run keeps and counts
                         env_steps += data.numel()
                         stats.add_episodes(data)
@@ -311,11 +390,16 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
                         if multi:  # a dead worker would never acknowledge the new weights
                             if (dead := _dead_worker(collector, run)) is not None:
                                 raise dead
-                            collector.update_policy_weights_()
+                            with waiting:
+                                collector.update_policy_weights_()
                         if row is not None:
                             bar.set_postfix(ret=f"{row.get('train_return/mean', float('nan')):.1f}")
                         if env_steps >= total:
                             break
+            except StopWhileWaiting:  # a worker that does not answer: its batch is not awaited
+                _end_workers(collector)
+                collector = None
+                stop_here(recipe, [run], [algo], [logger], [cadence], [env_steps])
             except Exception as e:  # a worker that died: one line, not the collector's traceback
                 dead = e if isinstance(e, WorkerDiedError) else None
                 dead = dead or (_dead_worker(collector, run) if multi else None)
@@ -391,13 +475,19 @@ def resume_checkpoint(run: RunDir, algo: Algorithm) -> int:
     state = run.load_checkpoint()
     try:
         algo.load_state_dict(state["learner"])
-    except (ValueError, RuntimeError, KeyError) as e:
+    except CHECKPOINT_MISFITS as e:
         raise CheckpointError(
             f"{run.checkpoint_path} does not fit the recipe's networks (was the recipe "
             f"changed since training?): {str(e).splitlines()[0] if str(e) else repr(e)}"
         ) from None
     env_steps = state["env_steps"]
-    set_rng_state(state["rng"])
+    try:
+        set_rng_state(state["rng"])
+    except CHECKPOINT_MISFITS as e:
+        raise CheckpointError(
+            f"{run.checkpoint_path}: its random state is not one gcnt wrote "
+            f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})"
+        ) from None
     if state.get("has_buffers"):
         algo.load_buffers(run.buffers_dir)
     run.truncate_metrics(env_steps)
@@ -413,6 +503,52 @@ def follow_algorithm(collector, settings: CollectSettings, algo: Algorithm, env_
         collector.init_random_frames = 0
     if algo.reset_due():
         collector.reset()
+
+
+def start_collector(recipe: Recipe, env: EnvBase, settings: CollectSettings, run: RunDir):
+    """:func:`make_collector`; a worker process that dies while the collector starts (it
+    waits for each worker's word that its envs are built) is a :class:`WorkerDiedError`, not
+    torchrl's traceback. The half-built collector is ended here, its workers and its weight
+    channels, while new threads can still start: left to the garbage collector at exit, its
+    channels' clean-up would wait forever for a thread that can no longer start."""
+    if settings.env_makers is None:
+        return make_collector(recipe, env, settings)
+    try:
+        return make_collector(recipe, env, settings)
+    except Exception as e:  # noqa: BLE001 - which worker failed, and how, is said below
+        half_built = _collector_in(e.__traceback__)
+        detail = str(e).splitlines()[0] if str(e) else type(e).__name__
+    if half_built is not None:
+        _end_workers(half_built)
+        for scheme in (getattr(half_built, "_weight_sync_schemes", None) or {}).values():
+            with contextlib.suppress(Exception):
+                scheme.shutdown()
+        dead = _dead_worker(half_built, run)
+    else:
+        dead = None
+    del half_built
+    import gc
+
+    gc.collect()  # the collector and what it holds, now rather than at exit
+    then = (
+        f"what was checkpointed is kept: continue with gcnt train --resume {run.path}"
+        if run.has_checkpoint()
+        else "nothing was trained yet: run the same command again"
+    )
+    if dead is not None:
+        raise WorkerDiedError(f"{str(dead).split(';')[0]} while starting up; {then}")
+    raise WorkerDiedError(f"a collector worker failed to start ({detail}); {then}")
+
+
+def _collector_in(tb: Any) -> Any:
+    """The collector whose construction raised, from the traceback's frames (None: none)."""
+    found = None
+    while tb is not None:
+        candidate = tb.tb_frame.f_locals.get("self")
+        if isinstance(candidate, MultiSyncCollector):
+            found = candidate
+        tb = tb.tb_next
+    return found
 
 
 def make_collector(recipe: Recipe, env: EnvBase, settings: CollectSettings):

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from gcnt import provenance
-from gcnt.files import GiB, open_regular, write_text
+from gcnt.files import GiB, append_text, open_regular, rename, save_torch, write_text
 from gcnt.recipes import Recipe, RecipeError, load_run_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
@@ -141,9 +141,7 @@ class RunDir:
         """Write the resolved recipe (atomically: a killed run keeps the previous file)."""
         recipe.run_dir = str(self.path)
         self.path.mkdir(parents=True, exist_ok=True)
-        tmp = self.recipe_path.with_suffix(".tmp")
-        save_recipe(recipe, tmp)
-        os.replace(tmp, self.recipe_path)
+        save_recipe(recipe, self.recipe_path)
 
     def load_recipe(self, overrides: list[str] | None = None, *, anywhere: bool = False) -> Recipe:
         """The run's recipe to go on with on this machine (:func:`gcnt.recipes.load_run_recipe`:
@@ -154,8 +152,8 @@ class RunDir:
 
     # --- metrics
     def log_metrics(self, row: dict[str, Any]) -> None:
-        with _writing(self.metrics_path, "the metrics"), self.metrics_path.open("a") as f:
-            f.write(metrics_line(row))
+        with _writing(self.metrics_path, "the metrics"):
+            append_text(self.metrics_path, metrics_line(row))
 
     def read_metrics(self) -> list[dict[str, Any]]:
         """The logged rows (:func:`gcnt.rl.metrics_log.read_metrics`: ``null`` reads back as
@@ -166,17 +164,41 @@ class RunDir:
         except MetricsFileError as e:
             raise RunDirError(str(e)) from None
 
+    def claim(self) -> bool:
+        """Make the run directory (its parents as needed) in one atomic ``mkdir``: True where
+        this process made it, False where it was there already (another start got there
+        first, or an earlier one). Only what this process made may it remove
+        (:meth:`discard_failed_start`)."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.path.mkdir()
+        except FileExistsError:
+            return False
+        except OSError as e:
+            raise RunDirError(
+                f"run_dir {self.path}: cannot create the run directory ({e.strerror or e})"
+            ) from None
+        return True
+
     def discard_failed_start(self) -> bool:
-        """Remove this directory if a run that failed to start made it and left nothing of
-        value (no checkpoint, no logged row, no evaluation), so that the same command can be run
-        again once the cause is fixed; whether it was removed."""
-        if not self.path.is_dir() or self.has_checkpoint():
+        """Remove this directory, which a run that failed to start made (:meth:`claim`), if it
+        left nothing of value (no checkpoint, no logged row, no evaluation), so that the same
+        command can be run again once the cause is fixed; whether it was removed. It is
+        removed holding its lock: a directory that another process trains now (a start that
+        won the race for it) is left alone."""
+        from gcnt.rl.run_lock import RunBusyError, run_lock
+
+        if not self.path.is_dir() or self.path.is_symlink():
             return False
-        if self.metrics_path.exists() and self.metrics_path.stat().st_size:
+        try:
+            with run_lock(self.path):
+                if self.has_checkpoint() or (self.path / "eval").exists():
+                    return False
+                if self.metrics_path.exists() and self.metrics_path.stat().st_size:
+                    return False
+                shutil.rmtree(self.path, ignore_errors=True)
+        except (RunBusyError, RunDirError):
             return False
-        if (self.path / "eval").exists():
-            return False
-        shutil.rmtree(self.path, ignore_errors=True)
         return not self.path.exists()
 
     def set_aside_metrics(self) -> Path | None:
@@ -187,17 +209,16 @@ class RunDir:
         n = 1
         while (aside := self.path / f"metrics.restart{n}.jsonl").exists():
             n += 1
-        os.replace(self.metrics_path, aside)
+        with _writing(aside, "the metrics"):
+            rename(self.metrics_path, aside)
         return aside
 
     def truncate_metrics(self, env_steps: int) -> None:
         """Drop lines logged after the checkpoint a resumed run starts from (and an incomplete
         last line)."""
         rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
-        tmp = self.metrics_path.with_suffix(".tmp")
-        with _writing(tmp, "the metrics"):
-            write_text(tmp, "".join(metrics_line(r) for r in rows))
-            os.replace(tmp, self.metrics_path)
+        with _writing(self.metrics_path, "the metrics"):
+            write_text(self.metrics_path, "".join(metrics_line(r) for r in rows))
 
     # --- checkpoints
     def save_checkpoint(self, state: dict[str, Any]) -> None:
@@ -208,20 +229,16 @@ class RunDir:
         a RunDirError."""
         self.inside("checkpoints")
         state = plain_state({**state, "rng": rng_state()})
-        tmp = self.checkpoint_path.with_suffix(".tmp")
         kept = (
             f"the last good checkpoint {self.checkpoint_path} was kept"
             if self.checkpoint_path.exists()
             else "no checkpoint was written yet"
         )
         try:
-            tmp.parent.mkdir(parents=True, exist_ok=True)
-            torch.save(state, tmp)
-            os.replace(tmp, self.checkpoint_path)
+            self.checkpoint_path.parent.mkdir(parents=True, exist_ok=True)
+            save_torch(state, self.checkpoint_path)
         except (OSError, RuntimeError) as e:  # torch's zip writer reports a failed write as
             # a RuntimeError ("PytorchStreamWriter failed writing file ...")
-            with contextlib.suppress(OSError):
-                tmp.unlink(missing_ok=True)
             raise RunDirError(
                 f"{self.checkpoint_path}: cannot write the checkpoint ({_reason(e)}); {kept}"
             ) from None
@@ -262,7 +279,49 @@ class RunDir:
             ) from None
         if not isinstance(state, dict) or "env_steps" not in state:
             raise CheckpointError(f"{path}: not a gcnt checkpoint")
+        check_checkpoint(state, path)
         return state
+
+
+#: what loading a checkpoint's state into networks and optimisers raises where the state does
+#: not fit them (a changed recipe) or was tampered with (a tensor of another shape, a list
+#: where a mapping belongs, a missing key)
+CHECKPOINT_MISFITS = (ValueError, RuntimeError, KeyError, TypeError, AttributeError, IndexError)
+
+#: what each part of a checkpoint is, where it has one
+_CHECKPOINT_PARTS = {"learner": dict, "policy": dict, "rng": dict, "env_steps": int}
+
+
+def check_checkpoint(state: dict[str, Any], path: Path) -> None:
+    """A CheckpointError naming ``path`` for a checkpoint no training writes: a part of the
+    wrong type (``learner`` not a mapping, ``env_steps`` not a whole number), or weights or
+    optimiser moments that are not finite (NaN, infinite): gcnt stops a diverged run before
+    it checkpoints."""
+    for key, kind in _CHECKPOINT_PARTS.items():
+        value = state.get(key, kind())
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise CheckpointError(
+                f"{path}: {key} is {type(value).__name__}, not {_KIND_NAMES[kind]}; not a "
+                "checkpoint gcnt wrote"
+            )
+    if state["env_steps"] < 0:
+        raise CheckpointError(f"{path}: env_steps is negative; not a checkpoint gcnt wrote")
+    stack: list[tuple[str, Any]] = [(k, v) for k, v in state.items() if k != "rng"]
+    while stack:
+        name, value = stack.pop()
+        if isinstance(value, dict):
+            stack.extend((f"{name}.{k}", v) for k, v in value.items())
+        elif isinstance(value, list | tuple):
+            stack.extend((f"{name}.{i}", v) for i, v in enumerate(value))
+        elif isinstance(value, torch.Tensor) and value.is_floating_point():
+            if not bool(torch.isfinite(value).all()):
+                raise CheckpointError(
+                    f"{path}: {name} holds NaN or infinite values; a checkpoint gcnt writes "
+                    "holds finite weights"
+                )
+
+
+_KIND_NAMES = {dict: "a mapping", int: "a whole number"}
 
 
 def load_error_detail(e: Exception) -> str:

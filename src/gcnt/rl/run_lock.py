@@ -29,6 +29,8 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
+from gcnt.files import NotRegularFileError, open_lock
+
 LOCK_FILE = ".lock"
 
 #: resolved run directory -> this process's open descriptor of its lock file
@@ -90,11 +92,11 @@ def holder(run_dir: str | Path) -> Holder | None:
     if path in _HELD:
         return _read_holder(_HELD[path])
     lock = path / LOCK_FILE
-    try:
-        fd = os.open(lock, os.O_RDWR)
-    except FileNotFoundError:
+    if not lock.exists() and not lock.is_symlink():
         return None
-    except OSError:  # unreadable: the writer will find out itself
+    try:
+        fd = open_lock(lock)
+    except OSError:  # unreadable, or not a regular file: the writer will find out itself
         return None
     try:
         got = _try_lock(fd)
@@ -123,7 +125,9 @@ def run_lock(run_dir: str | Path):
             f"run_dir {run_dir}: cannot create the run directory ({e.strerror or e})"
         ) from None
     try:
-        fd = os.open(path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_lock(path / LOCK_FILE)  # never through a link, a FIFO or a device
+    except NotRegularFileError as e:
+        raise RunDirError(f"{e}; it is the run's lock file ({LOCK_FILE})") from None
     except OSError as e:
         raise RunDirError(
             f"run_dir {run_dir}: cannot create its lock file ({e.strerror or e})"

@@ -12,9 +12,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from gcnt.files import NotRegularFileError, check_replaceable, open_append
 from gcnt.sweep.manifest import Manifest
 from gcnt.sweep.spec import RunSpec, commands, gcnt_command
-from gcnt.sweep.status import ACTIVE, now
+from gcnt.sweep.status import ACTIVE, SweepError, now
 
 log = logging.getLogger(__name__)
 
@@ -174,6 +175,11 @@ def run_local(
     from gcnt.rl.run_lock import holder
 
     fresh = [r for r in manifest.runs if r.state not in ACTIVE and commands(r)]
+    for r in fresh:  # a FIFO or a link as a log: refused before any run starts
+        try:
+            check_replaceable(run_log_path(manifest.dir, r))
+        except NotRegularFileError as e:
+            raise SweepError(f"{e}; it is where the run's output is logged") from None
     todo: list[tuple[list[RunSpec], list]] = []
     for group in stacked_groups(fresh, stack_seeds):
         steps = commands(group[0]) if len(group) == 1 else [("train", stacked_command(group))]
@@ -187,7 +193,7 @@ def run_local(
         what, argv = steps[0]
         logf = run_log_path(sweep_dir, group[0])
         logf.parent.mkdir(parents=True, exist_ok=True)
-        fh = logf.open("a")
+        fh = open_append(logf)
         fh.write(f"\n# {now()} slot {slot} cores {slots[slot]}: {' '.join(argv)}\n")
         fh.flush()
         cores = set(slots[slot])

@@ -13,7 +13,15 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.analysis.runs import RECIPE_FILE, Run
-from gcnt.files import KiB, MiB, read_json, read_text, write_text
+from gcnt.files import (
+    KiB,
+    MiB,
+    NotRegularFileError,
+    check_replaceable,
+    read_json,
+    read_text,
+    write_text,
+)
 from gcnt.sweep.spec import RunSpec
 from gcnt.sweep.status import SweepError, now, read_record, slurm_states
 
@@ -113,9 +121,7 @@ class Manifest:
             _relocate(copy, lambda p: _inside(p, here))
             stored.append(asdict(copy))
         data = {**self.meta, "runs": stored}
-        tmp = self.path.with_suffix(".tmp")
-        write_text(tmp, json.dumps(data, indent=1))
-        os.replace(tmp, self.path)
+        write_text(self.path, json.dumps(data, indent=1))
         return self.path
 
     def counts(self) -> dict[str, int]:
@@ -196,11 +202,17 @@ class SweepLock:
 
     def __enter__(self) -> SweepLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            check_replaceable(self.path)  # a link or a FIFO is refused, not read or replaced
+        except NotRegularFileError as e:
+            raise SweepError(
+                f"{e}; it should hold the pid of the process driving the sweep"
+            ) from None
         if self.path.exists():
             try:
                 pid = int(read_text(self.path, KiB, "a sweep lock holds a process id", SweepError))
                 os.kill(pid, 0)
-            except (ValueError, ProcessLookupError):
+            except (ValueError, ProcessLookupError, OverflowError):
                 pass  # stale
             except PermissionError:
                 raise SweepError(f"{self.path.parent}: another process drives this sweep") from None

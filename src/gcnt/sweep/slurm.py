@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gcnt.files import open_append
 from gcnt.sweep.local import finish_step, pinned_env, run_log_path
 from gcnt.sweep.manifest import Manifest
 from gcnt.sweep.spec import RunSpec, commands
@@ -83,7 +84,7 @@ class SweepTask:
         out = None
         if logf is not None:
             logf.parent.mkdir(parents=True, exist_ok=True)
-            out = logf.open("a")
+            out = open_append(logf)
             out.write(f"\n# {now()} {' '.join(argv)}\n")
             out.flush()
         try:
@@ -166,6 +167,13 @@ class ClusterOptions:
         return cls(**{k: v for k, v in data.items() if k in known})
 
 
+class _LogFile(logging.FileHandler):
+    """A log file opened as every log of gcnt is (:func:`gcnt.files.open_append`)."""
+
+    def _open(self):
+        return open_append(self.baseFilename)
+
+
 def submitit_log(sweep_dir: Path) -> Path:
     """Route submitit's log lines (its sacct fallbacks, job states, tracebacks of jobs) to
     ``<sweep>/submitit/submitit.log`` instead of the terminal."""
@@ -178,7 +186,7 @@ def submitit_log(sweep_dir: Path) -> Path:
             if isinstance(h, logging.FileHandler):
                 h.close()
     if not logger.handlers:
-        handler = logging.FileHandler(path)
+        handler = _LogFile(path, delay=True)
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
         logger.addHandler(handler)
     logger.propagate = False

@@ -88,9 +88,7 @@ def write_record(sweep_dir: str | Path, spec: RunSpec, state: str, **extra: Any)
         "updated": now(),
         **extra,
     }
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    write_text(tmp, json.dumps(data, indent=1))
-    os.replace(tmp, path)
+    write_text(path, json.dumps(data, indent=1))
 
 
 def slurm_states(job_ids: Sequence[str]) -> dict[str, str]:

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from gcnt.data_folders import packaged_morphologies, user_morphologies
-from gcnt.files import read_regular, write_bytes, write_text
+from gcnt.files import NotRegularFileError, open_lock, read_regular, write_bytes, write_text
 from gcnt.morphology.catalogues import (
     IMPORTED_INDEX,
     Catalogue,
@@ -350,7 +350,10 @@ def _import_into(path: str | Path, name: str, out: Path) -> ImportedSet:
     defined = defined_in(out)
     check_name(name, out, defined)
     tmp = out / f"{_TMP_PREFIX.format(name=name)}{os.getpid()}"
+    if tmp.is_symlink():  # the link itself goes, never what it points to
+        tmp.unlink()
     shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()  # this import's own folder: every file is written below it
     splits: dict[str, list[str]] = {}
     origin: dict[str, str] = {}
     try:
@@ -393,7 +396,9 @@ def _import_lock(out: Path) -> Iterator[None]:
     lock = out / IMPORT_LOCK
     while True:
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = open_lock(lock)  # never through a link, a FIFO or a device
+        except NotRegularFileError as e:
+            raise UnimalImportError(f"{e}; it is the folder's import lock") from None
         except OSError as e:
             raise UnimalImportError(
                 f"{lock}: cannot create the import lock ({e.strerror})"

@@ -24,9 +24,11 @@ import numpy as np
 
 
 def _unlink(path: str) -> None:
+    """Remove ``path`` if it can be: one gone already, or that cannot be removed (a folder of
+    that name, another user's file in a shared ``/dev/shm``), stops no run."""
     try:
         os.unlink(path)
-    except FileNotFoundError:
+    except OSError:
         pass
 
 

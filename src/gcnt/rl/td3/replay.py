@@ -15,7 +15,6 @@ buffers, routed by ``morph_id``) for comparisons; training uses :class:`RobotRep
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -206,9 +205,9 @@ class RobotReplay:
         """Write :meth:`state_dict` to ``path`` atomically (a killed save keeps the old file)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        torch.save(self.state_dict(), tmp)
-        os.replace(tmp, path)
+        from gcnt.files import save_torch
+
+        save_torch(self.state_dict(), path)
         return path
 
     def load(self, path: str | Path) -> None:

@@ -106,7 +106,7 @@ def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
         for run in runs:  # a run already there is refused before any directory is made
             if run.path.is_dir():
                 run.check_new()
-        made = [run for run in runs if not run.path.exists()]
+        made = [run for run in runs if run.claim()]  # only these are this command's to remove
         held = run_locks([run.path for run in runs])  # one writer per run directory
         try:
             held.__enter__()
