@@ -276,7 +276,7 @@ base: {root}/recipes/smpenv/_td3.yaml
 task: tiny
 env: {{robots: [walker_2_main, hopper_3], max_episode_steps: 15}}
 collector: {{total_frames: 40}}
-td3: {{init_random_frames: 20, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
+td3: {{init_random_frames: 10, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
       updates_per_step: 0.25}}
 network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
 logger: {{backend: none, progress: false, log_interval: 20}}

@@ -47,6 +47,7 @@ TASKS = (
     "UNIMAL-Obstacles",
     "UNIMAL100-FT",
     "study-Walker++",
+    "study4-Walker++",
     "study-UNIMAL-FT",
     "study-UNIMAL-FT-fair",
     "study-UNIMAL100-FT-fair",
