@@ -86,7 +86,8 @@ class NetworkConfig:
 
 @dataclass
 class LoggerConfig:
-    #: wandb (offline by default) | csv | none; metrics.jsonl in the run directory always
+    #: wandb (offline by default: seconds per run, docs/runs.md) | csv | none; metrics.jsonl in
+    #: the run directory always
     backend: Literal["wandb", "csv", "none"] = "wandb"
     #: wandb mode: offline needs no network; sync later with `wandb sync`
     mode: Literal["offline", "online"] = "offline"
