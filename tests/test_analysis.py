@@ -195,8 +195,11 @@ def test_variants_command(sweep: Path) -> None:
     assert (
         main(["variants", str(sweep), "--sets", "test", "--iqm", "--profile", "--reps", "200"]) == 0
     )
-    assert (sweep / "figures" / "variants.caption.txt").read_text() == caption + "\n"
-    assert (sweep / "figures" / "variants.md").read_text().rstrip().endswith(f"_{caption}_")
+    # the figure's caption, then the code of the runs (the caption's first letter capitalised)
+    text = (sweep / "figures" / "variants.caption.txt").read_text()
+    assert text.startswith("Zero-shot return per method. Error bars:")
+    assert text.endswith(f" {caption[0].upper()}{caption[1:]}.\n")
+    assert (sweep / "figures" / "variants.md").read_text().rstrip().endswith(f"_{text.strip()}_")
     data = json.loads((sweep / "figures" / "variants.json").read_text())
     assert set(data["test"]) == {"gcnt", "swat", "amorpheus"}
     est = data["test"]["gcnt"]["mean"]

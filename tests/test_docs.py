@@ -142,3 +142,43 @@ def test_one_place_states_the_expected_quick_start_results() -> None:
         for m in result.finditer(p.read_text(encoding="utf-8"))
     ]
     assert not stated, stated
+
+
+#: the README is the front door: what gcnt is, its set-up, quick starts, main commands, links
+README_MAX_LINES = 250
+
+
+def test_the_readme_is_a_front_door() -> None:
+    lines = README.read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines"
+    text = "\n".join(lines)
+    assert "make train" in text and "make test" in text
+
+
+def _anchors(path: Path) -> set[str]:
+    """The anchors of a Markdown file's headings, as GitHub makes them."""
+    out = set()
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith("#"):
+            title = line.lstrip("#").strip().lower()
+            slug = re.sub(r"[^\w\- ]", "", title).replace(" ", "-")
+            out.add(slug)
+    return out
+
+
+def test_every_relative_link_resolves() -> None:
+    """Every relative link of README.md and docs/*.md names a file or folder that exists, and a
+    heading of it where the link names one."""
+    broken = []
+    for path in DOCS:
+        text = re.sub(r"```.*?```", "", path.read_text(encoding="utf-8"), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target):  # https:, mailto:
+                continue
+            file, _, anchor = target.partition("#")
+            where = (path.parent / file).resolve() if file else path
+            if not where.exists():
+                broken.append(f"{path.name}: {target}")
+            elif anchor and where.suffix == ".md" and anchor not in _anchors(where):
+                broken.append(f"{path.name}: {target} (no such heading)")
+    assert not broken, broken

@@ -154,6 +154,40 @@ def test_curves_command_writes_pdf_and_svg_with_display_names(tmp_path: Path, ca
     assert re.search(r"font: 7px|font-size: ?7px", (out / "curves.svg").read_text())
 
 
+def _media_box(pdf: Path) -> tuple[float, float]:
+    """The page size of a one-page PDF, inches (its MediaBox, in points)."""
+    (box,) = set(re.findall(rb"/MediaBox\s*\[\s*([-\d.\s]+)\]", pdf.read_bytes()))
+    x0, y0, x1, y1 = map(float, box.split())
+    return (x1 - x0) / 72, (y1 - y0) / 72
+
+
+@pytest.mark.parametrize(("tasks", "size"), [(1, (3.4, 2.6)), (3, (7.0, 2.6))])
+@pytest.mark.filterwarnings("error")  # everything drawn fits: nothing cut, no layout given up
+def test_curves_figsize_is_the_pdf_page_legend_included(
+    tmp_path: Path, tasks: int, size: tuple[float, float]
+) -> None:
+    runs = tmp_path / "runs"
+    for t in range(tasks):
+        for method, level in (("gcnt", 2.0), ("metamorph_star", 1.0)):
+            run = curve_run(runs / f"t{t}", method, 0, [600, 1200], lambda s, a=level: a * s)
+            recipe = run / "recipe.yaml"  # a task of its own
+            recipe.write_text(recipe.read_text().replace("task: Walker++", f"task: Task{t}"))
+    out = tmp_path / "fig"
+    argv = [
+        "curves",
+        str(runs),
+        "--out",
+        str(out),
+        "--format",
+        "pdf",
+        "--figsize",
+        f"{size[0]},{size[1]}",
+    ]
+    assert main(argv) == 0
+    width, height = _media_box(out / "curves.pdf")
+    assert (width, height) == (pytest.approx(size[0], abs=1e-3), pytest.approx(size[1], abs=1e-3))
+
+
 def _rows(method: str, steps, means, stderr, seeds: int, task: str = "Walkerpp") -> list[dict]:
     return [
         {"task": task, "method": method, "env_steps": s, "mean": m, "stderr": e, "seeds": seeds,
@@ -241,7 +275,9 @@ def test_a_bootstrap_over_two_seeds_is_not_called_a_95_ci(tmp_path: Path, capsys
     assert (item["mean"]["low"], item["mean"]["high"]) == (2.0, 2.5)  # the seeds' range
     for svg in ("variants.svg", "variants-panels.svg"):
         text = " ".join(_svg_text(out / svg).split())
-        assert "95% CI" not in text and "range of the seeds'" in text and "GCNT" in text
+        assert "95% CI" not in text and "GCNT" in text  # the caption is beside the figure
+    caption = (out / "variants.caption.txt").read_text()
+    assert "95% CI" not in caption and "range of the seeds'" in caption
     # five seeds: a bootstrap CI, called so with its n
     for seed in range(2, 5):
         gcnt_eval(
@@ -336,8 +372,8 @@ def test_a_pattern_is_never_a_title_and_panels_hold_every_interval() -> None:
         assert "*" not in ax.get_title()
         assert ax.get_title().startswith("walker_2_main, walker_3_main, …, walker_7_main (4 robots")
         assert [t.get_text() for t in ax.get_xticklabels()] == ["GCNT", "MetaMorph*"]
-        assert fig._suptitle.get_text().startswith("Figure 8\n")
-        assert "Error bars: range (n = 2 seeds)." in " ".join(fig._suptitle.get_text().split())
+        assert fig._suptitle.get_text() == "Figure 8"  # the caption goes beside the figure
+        assert "Error bars: range (n = 2 seeds)." in bars.caption(summary)
         assert tuple(fig.get_size_inches()) == (4.0, 3.0)
     finally:
         plt.close(fig)

@@ -19,9 +19,18 @@ import pytest
 from cli_helpers import ROOT, TINY_SWEEP_OVERRIDES
 
 import gcnt
+from gcnt import provenance as P
 
 #: what a build of the package reads from the checkout
-SOURCES = ("pyproject.toml", "README.md", "LICENSE", "src", "recipes", "morphologies")
+SOURCES = (
+    "pyproject.toml",
+    "README.md",
+    "LICENSE",
+    "src",
+    "recipes",
+    "morphologies",
+    "constraints.txt",
+)
 
 
 def _build_wheel(tmp_path: Path) -> Path:
@@ -87,6 +96,15 @@ def test_a_wheel_runs_robots_train_and_eval_outside_the_checkout(tmp_path):
     ).stdout
     assert where.startswith(str(tmp_path / "venv")), where  # the wheel's gcnt, not the checkout's
     assert gcnt_("--version").strip() == f"gcnt {gcnt.__version__}"
+    # the versions gcnt is tested with travel in the wheel, beside this environment's
+    report = gcnt_("--version", "--verbose").splitlines()
+    tested = P.tested_versions()
+    assert tested["torch"] and tested["torchrl"] and "pytest" not in tested  # no dev tools
+    for name, version in tested.items():
+        (row,) = [line.split() for line in report if line.split()[:1] == [name]]
+        assert row[1] == version and row[2].split("+")[0] == P._version(name).split("+")[0]
+    shipped = Path(where).parent / "data" / "constraints.txt"
+    assert shipped.is_file() and not shipped.is_symlink() and str(shipped) in report[-1]
     listing = gcnt_("robots")
     assert "Walker++:train" in listing and "Unimal:test" in listing
     assert f"your robot sets (GCNT_MORPHOLOGIES, added to gcnt's): {tmp_path}/xdg/gcnt/" in listing
@@ -101,3 +119,60 @@ def test_a_wheel_runs_robots_train_and_eval_outside_the_checkout(tmp_path):
     assert "hopper_4" in out
     assert (work / "by-path" / "checkpoints" / "last.pt").is_file()
     assert not (tmp_path / "xdg").exists()  # nothing written to the user's data folder
+
+    # the shipped notebook runs on the installed package, outside the checkout, and removes
+    # its temporary folder
+    pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    executed = tmp_path / "executed.ipynb"
+    done = subprocess.run(
+        [bin_ / "python", "-c", RUN_NOTEBOOK, str(NOTEBOOK), str(work), str(executed)],
+        cwd=work, env=env | {"TMPDIR": str(tmp)}, capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    text = _stream_text(executed)
+    assert f"from {Path(where).parent}" in text  # the wheel's gcnt in the notebook's kernel
+    assert "finished: True" in text
+    assert list(tmp.glob("gcnt-quickstart-*")) == []  # its run's temporary folder is gone
+
+
+NOTEBOOK = ROOT / "notebooks" / "quickstart.ipynb"
+#: run by the installed environment's Python: execute a notebook (its kernel: that Python) in a
+#: folder, write the executed notebook
+RUN_NOTEBOOK = """\
+import sys
+import nbclient, nbformat
+nb = nbformat.read(sys.argv[1], as_version=4)
+resources = {"metadata": {"path": sys.argv[2]}}
+nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources=resources).execute()
+nbformat.write(nb, sys.argv[3])
+"""
+
+
+def _stream_text(path: Path) -> str:
+    """The printed output of an executed notebook's cells."""
+    import json
+
+    cells = json.loads(path.read_text())["cells"]
+    outputs = [o for c in cells if c["cell_type"] == "code" for o in c.get("outputs", [])]
+    return "".join("".join(o.get("text", "")) for o in outputs if o["output_type"] == "stream")
+
+
+def test_version_verbose_lists_the_tested_versions_beside_these(capsys) -> None:
+    from gcnt.cli import main
+
+    assert main(["--version", "--verbose"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"gcnt {gcnt.__version__}"
+    (torch_row,) = [line.split() for line in lines if line.split()[:1] == ["torch"]]
+    assert torch_row[1] == P.tested_versions()["torch"] == _pinned("torch")
+
+
+def _pinned(name: str) -> str:
+    """The version constraints.txt pins ``name`` to."""
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        if line.startswith(f"{name}=="):
+            return line.split("==")[1].strip()
+    raise AssertionError(f"{name} is not pinned")

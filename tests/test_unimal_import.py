@@ -284,6 +284,21 @@ def test_refusals_name_the_culprit_and_leave_nothing(unimals, morph, tmp_path, c
     assert f"{morph / 'Unimal100'}: already imported; remove the folder" in line
 
 
+def test_every_robot_name_given_twice_is_named_in_the_one_line(unimals, morph, tmp_path, capsys):
+    import shutil
+
+    copy = tmp_path / "twice" / "unimals_100"
+    shutil.copytree(unimals, copy)
+    for name in FAKE["train"]:  # both training robots also in the test set
+        shutil.copy(copy / "train" / "xml" / f"{name}.xml", copy / "test" / "xml")
+    line = error_line(capsys, ["import-unimal", str(copy)])
+    assert "robot names given to more than one file (2)" in line, line
+    for name in FAKE["train"]:
+        files = f"{copy / 'train' / 'xml' / name}.xml, {copy / 'test' / 'xml' / name}.xml"
+        assert f"'{name}' ({files})" in line, line
+    assert sorted(p.name for p in morph.iterdir() if not p.is_symlink()) == []
+
+
 def test_gcnt_robots_says_which_unimal_robots_it_lists(capsys):
     assert gcnt(["robots"]) == 0
     out = capsys.readouterr().out

@@ -161,4 +161,12 @@ def test_variants_command_states_interval_and_protocol(tmp_path: Path, capsys) -
     )
     assert data["test"]["gcnt"]["robots"] == 2 and data["Walker++:train"]["gcnt"]["robots"] == 4
     assert (tmp_path / "figures" / "variants.png").read_bytes()[:4] == b"\x89PNG"
+    # the caption beside the figure, as text, Markdown and LaTeX: the error bars, the protocol
+    # and the code of the runs
+    caption = (tmp_path / "figures" / "variants.caption.txt").read_text().strip()
+    assert caption.startswith("Zero-shot return per method. Error bars: range")
+    assert "10 episodes per robot" in caption and caption.endswith("(2 runs).")
+    assert text.rstrip().endswith(f"_{caption}_")
+    tex = (tmp_path / "figures" / "variants.caption.tex").read_text()
+    assert tex.startswith("\\caption{Zero-shot return per method.") and "n = 2 seeds" in tex
     assert main([*argv, "--reps", "0"]) == 2

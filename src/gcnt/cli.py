@@ -131,7 +131,13 @@ def build_parser(only: str | None) -> argparse.ArgumentParser:
         "repeatable, anywhere on the line; runs record it (also: GCNT_PLUGINS=a,b and the "
         "gcnt.plugins entry points)",
     )
-    parser.add_argument("--version", action="version", version=f"gcnt {gcnt.__version__}")
+    parser.add_argument(
+        "--version",
+        action="version",
+        version=f"gcnt {gcnt.__version__}",
+        help="show gcnt's version (with --verbose first: also the package versions it is tested "
+        "with, beside this environment's)",
+    )
     sub = parser.add_subparsers(
         dest="command", required=True, metavar="COMMAND", parser_class=IntermixedParser
     )
@@ -188,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"gcnt: error: {e}", file=sys.stderr)
         return 2
     command = _command_of(argv)
+    if command is None and "--version" in argv and ({"-v", "--verbose"} & set(argv)):
+        print(provenance.versions_report())
+        return 0
     if command is not None and command not in COMMANDS:
         print(
             f"gcnt: unknown command {command!r}{did_you_mean(command, COMMANDS)} "

@@ -1,10 +1,11 @@
 """Where gcnt's files live: the robots and recipes that ship with the package, and the user's
 own robot sets.
 
-* The packaged files are ``gcnt/data/morphologies`` (robot files and benchmark split files) and
-  ``gcnt/data/recipes`` inside the installed package. In a checkout these are links to the
-  repository's top-level ``morphologies/`` and ``recipes/`` folders, the files' only copy; a
-  wheel holds the files themselves.
+* The packaged files are ``gcnt/data/morphologies`` (robot files and benchmark split files),
+  ``gcnt/data/recipes`` and ``gcnt/data/constraints.txt`` (the versions gcnt is tested with)
+  inside the installed package. In a checkout these are links to the repository's top-level
+  ``morphologies/``, ``recipes/`` and ``constraints.txt``, the files' only copy; a wheel holds
+  the files themselves.
 * The user's robot sets (``gcnt import-unimal``; any folder ``<name>/catalogue.yaml`` of robot
   files) live in a per-user folder: ``$GCNT_MORPHOLOGIES`` if set, else
   ``$XDG_DATA_HOME/gcnt/morphologies``, else ``~/.local/share/gcnt/morphologies``. They are read
@@ -27,6 +28,11 @@ def packaged_morphologies() -> Path:
     """The folder of the robot files and split files that ship with gcnt (resolved: in a
     checkout, its ``morphologies/``)."""
     return (PACKAGE_DATA / "morphologies").resolve()
+
+
+def tested_versions_file() -> Path:
+    """The exact versions gcnt is tested with (``constraints.txt``, shipped in the package)."""
+    return (PACKAGE_DATA / "constraints.txt").resolve()
 
 
 def packaged_recipes() -> Path:

@@ -145,6 +145,39 @@ def _unknown(note: str) -> dict[str, Any]:
     return {"commit": None, "dirty": None, "note": note}
 
 
+def tested_versions() -> dict[str, str]:
+    """The exact version of each package gcnt is tested with (its shipped ``constraints.txt``;
+    the development tools after its ``# dev`` line are left out)."""
+    from gcnt.data_folders import tested_versions_file
+
+    out: dict[str, str] = {}
+    for line in tested_versions_file().read_text().splitlines():
+        if line.strip() == "# dev":
+            break
+        name, sep, version = line.split("#")[0].strip().partition("==")
+        if sep:
+            out[name] = version
+    return out
+
+
+def versions_report() -> str:
+    """``gcnt --version --verbose``: gcnt's version, then per package the version tested and
+    the one installed here (flagged where they differ), and how to install the tested ones."""
+    from gcnt import __version__
+    from gcnt.data_folders import tested_versions_file
+
+    lines = [f"gcnt {__version__}", "package        tested     here"]
+    for name, tested in tested_versions().items():
+        here = _version(name) or "missing"
+        same = here.split("+")[0] == tested  # torch's local build tag (+cpu, +cu128) aside
+        lines.append(f"{name:<15}{tested:<11}{here}{'' if same else '  (differs)'}")
+    lines.append(
+        f"the tested versions as pip constraints: {tested_versions_file()} (pip install -c "
+        "FILE ...; torch first, the build for your platform: README, Set-up)"
+    )
+    return "\n".join(lines)
+
+
 def _version(name: str) -> str | None:
     try:
         return importlib.metadata.version(name)

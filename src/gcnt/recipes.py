@@ -64,7 +64,10 @@ class NetworkConfig:
     name: str = "gcnt"
     #: size preset: smpenv (paper appendix table 1) or unimal (table 3); unset: the benchmark's
     preset: str | None = None
-    #: keyword overrides of the preset (e.g. d_model: 64); validated by the network builder
+    #: keyword overrides of the preset (e.g. d_model: 64), for every method whose config has
+    #: these fields; a method whose config has none of them (another family: SMP, an MLP, a
+    #: plugin method with a config of its own) runs at its preset's sizes. Validated by the
+    #: network builder
     kwargs: dict[str, Any] = field(default_factory=dict)
     #: per-method overrides that replace ``kwargs`` when that method is chosen (e.g.
     #: ``{smp: {msg_dim: 16}}`` in a recipe whose ``kwargs`` shrink the Transformers), so that a
@@ -72,13 +75,19 @@ class NetworkConfig:
     method_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def sizes(self) -> dict[str, Any]:
-        """The overrides of the chosen method: ``method_kwargs[name]`` if set, else ``kwargs``."""
-        return dict(self.method_kwargs.get(self.name, self.kwargs))
+        """The overrides of the chosen method: ``method_kwargs[name]`` if set, else what
+        ``kwargs`` give it (:func:`gcnt.nn.registry.shared_sizes`)."""
+        if self.name in self.method_kwargs:
+            return dict(self.method_kwargs[self.name])
+        from gcnt.nn.registry import shared_sizes
+
+        return shared_sizes(self.name, self.kwargs)
 
 
 @dataclass
 class LoggerConfig:
-    #: wandb (offline by default) | csv | none; metrics.jsonl in the run directory always
+    #: wandb (offline by default: seconds per run, docs/runs.md) | csv | none; metrics.jsonl in
+    #: the run directory always
     backend: Literal["wandb", "csv", "none"] = "wandb"
     #: wandb mode: offline needs no network; sync later with `wandb sync`
     mode: Literal["offline", "online"] = "offline"

@@ -13,7 +13,6 @@ text, or the ``interval`` argument.
 from __future__ import annotations
 
 import math
-import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -68,7 +67,8 @@ def bar_figure(
 ):
     """The figure: a panel per set, sharing the methods' places and the y range; methods and
     sets by their display names (``style``'s over the defaults), its size and fonts as
-    ``style`` says, and its title the caption (or ``style``'s title)."""
+    ``style`` says, and its title ``style``'s (none by default: :func:`caption` is written
+    beside the figure)."""
     style = style or FigureStyle()
     with style.context():
         return _bar_figure(summary, statistics, interval, style)
@@ -145,10 +145,7 @@ def _bar_figure(
         axes[0, -1].legend(
             handles=handles, fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0)
         )
-    # about 12 characters an inch at 10 pt
-    chars = int(12 * fig.get_figwidth() * 10 / plt.rcParams["font.size"])
-    text = textwrap.fill(caption(summary, interval), chars)  # kept under a --title
-    fig.suptitle(f"{style.title}\n{text}" if style.title else text, fontsize="medium")
+    style.suptitle(fig)  # the caption goes beside the figure (:func:`caption`), not into it
     fig.tight_layout()
     return fig
 

@@ -368,7 +368,8 @@ def curves_figure(
                 ax.set_ylim(*limits)
             ax.set_title(style.name(task))
             ax.set_xlabel("environment steps")
-            ax.set_ylabel(ylabel or metric, fontsize="small")
+            label = _fitted(ylabel or metric, style, fig.get_figheight() / nrows, fig)
+            ax.set_ylabel(label, fontsize="small")
             ax.grid(alpha=0.3)
             if dodge:  # one step: its tick alone
                 ax.set_xticks(sorted(steps))
@@ -376,24 +377,60 @@ def curves_figure(
             ax.set_visible(False)
         style.suptitle(fig)
         fig.tight_layout()
-        # one legend beside every panel, never over the data: its seed counts per method (per
-        # panel where they differ); the saved figure grows to hold it
+        # one legend, never over the data: its seed counts per method (per panel where they
+        # differ). Beside every panel (the saved figure grows to hold it); on a page of a given
+        # size, below the panels, as wide as the page
         handles = [Line2D([], [], color=colours[m], marker="o", markersize=3.5) for m in counts]
         labels = [f"{style.name(m)} ({_counts_text(c)})" for m, c in counts.items()]
         if random_line:
             handles.append(Line2D([], [], color="0.4", linestyle=":", linewidth=1))
             labels.append("end of random actions")
-        fig.legend(
-            handles,
-            labels,
-            title=stderr_text([n for c in counts.values() for n, _ in c]),
-            fontsize="small",
-            title_fontsize="small",
-            loc="upper left",
-            bbox_to_anchor=(1.0, 1.0),
-            bbox_transform=axes[0, -1].transAxes if nrows == 1 else fig.transFigure,
-        )
+        title = stderr_text([n for c in counts.values() for n, _ in c])
+        common = {"fontsize": "small", "title_fontsize": "small"}
+        if style.figsize is None:
+            fig.legend(
+                handles, labels, title=title, **common, loc="upper left", bbox_to_anchor=(1.0, 1.0),
+                bbox_transform=axes[0, -1].transAxes if nrows == 1 else fig.transFigure,
+            )  # fmt: skip
+        else:
+            _legend_below(fig, handles, labels, title, common)
     return fig
+
+
+def _legend_below(fig, handles: list, labels: list[str], title: str, common: dict) -> None:
+    """The figure's legend below its panels in as many columns as fit its width, the title
+    wrapped to that width."""
+    import textwrap
+
+    width = fig.get_figwidth() * fig.dpi
+    renderer = fig.canvas.get_renderer()
+    chars = max(int(width / (0.6 * common_size(fig))), 20)
+    for ncols in range(len(handles), 0, -1):
+        legend = fig.legend(
+            handles, labels, title=textwrap.fill(title, chars), **common, ncols=ncols,
+            loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=fig.transFigure,
+        )  # fmt: skip
+        if ncols == 1 or legend.get_window_extent(renderer).width <= width:
+            return
+        legend.remove()
+
+
+def _fitted(label: str, style: FigureStyle, inches: float, fig) -> str:
+    """An axis label in "small" type: on a page of a given size, wrapped to about half of the
+    ``inches`` its panel has."""
+    if style.figsize is None:
+        return label
+    import textwrap
+
+    chars = int(0.5 * inches * fig.dpi / (0.55 * common_size(fig)))
+    return textwrap.fill(label, max(chars, 12))
+
+
+def common_size(fig) -> float:
+    """The legend's font size in pixels ("small" of matplotlib's font size) of ``fig``."""
+    from matplotlib.font_manager import FontProperties
+
+    return FontProperties(size="small").get_size_in_points() * fig.dpi / 72
 
 
 def _counts_text(counts: Sequence[tuple[int, int]]) -> str:

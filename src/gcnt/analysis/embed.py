@@ -2,7 +2,8 @@
 observation embedding from the robot's structure alone.
 
 * GCNT: the projected [GCN ‖ WL] features, ``Linear([GCN ‖ WL])`` of the fusion stage;
-* SWAT: the traversal position embeddings ``[E_pre ‖ E_in ‖ E_post]``.
+* SWAT: the traversal position embeddings ``[E_pre ‖ E_in ‖ E_post]``;
+* a plugin's method whose chain writes ``limbs/hidden`` and ``limbs/embed``.
 
 Both stages write ``limbs/hidden = limbs/embed + structural vector``, so a chain built with
 ``keep_intermediates=True`` gives the vector as ``hidden - embed``; it depends on the robot's
@@ -32,6 +33,18 @@ STRUCTURAL_METHODS = (
     "swat",
 )
 DEFAULT_ROBOTS = ("CWHH++:all",)
+
+
+class NoStructureError(AnalysisError):
+    """A method whose chain has no per-limb structural vector."""
+
+
+def has_structure(method: str) -> bool:
+    """Whether ``method`` may have a structural vector: gcnt's methods that have one, and any
+    method of a plugin (its chain is checked when built: :class:`NoStructureError`)."""
+    from gcnt.nn.registry import BUILT_IN, NETWORKS
+
+    return method in STRUCTURAL_METHODS or (method in NETWORKS and method not in BUILT_IN)
 
 
 @dataclass
@@ -73,7 +86,7 @@ def structural_vectors(
     from gcnt.morphology.limb_types import GLOBAL_LIMB_TYPES
     from gcnt.nn.registry import make_network
 
-    if method not in STRUCTURAL_METHODS:
+    if not has_structure(method):
         raise AnalysisError(
             f"method {method!r} has no per-limb structural vector "
             f"(these do: {', '.join(STRUCTURAL_METHODS)})"
@@ -117,7 +130,10 @@ def structural_vectors(
     with torch.no_grad():
         out = actor(td)
     if K.HIDDEN not in out.keys(True) or K.EMBED not in out.keys(True):
-        raise AnalysisError(f"{method}: the chain wrote no {K.HIDDEN} / {K.EMBED} intermediates")
+        raise NoStructureError(
+            f"{method}: its chain writes no limbs/hidden and limbs/embed intermediates (the "
+            "structural vector is hidden - embed)"
+        )
     vec = (out.get(K.HIDDEN) - out.get(K.EMBED)).numpy()
     rows, limb_types, names, families = [], [], [], []
     for i, robot in enumerate(robots):  # limbs 0..n-1 of each robot are its real limbs
@@ -136,6 +152,7 @@ def run_embedding(
     """Structural vectors of a run's trained actor (its latest checkpoint), titled with the
     display names of its method and task (``names`` over the defaults)."""
     from gcnt.analysis.names import display_name
+    from gcnt.recipes import NetworkConfig
 
     net = run.recipe.get("network") or {}
     actor_state = run.policy_state()["actor"]
@@ -145,7 +162,11 @@ def run_embedding(
         actor_state=actor_state,
         benchmark=run.benchmark,
         preset=net.get("preset"),
-        kwargs=dict(net.get("kwargs") or {}),
+        kwargs=NetworkConfig(
+            name=run.method,
+            kwargs=dict(net.get("kwargs") or {}),
+            method_kwargs=dict(net.get("method_kwargs") or {}),
+        ).sizes(),
         role="ppo_actor" if run.algo == "ppo" else "td3_actor",
         title=f"{display_name(run.method, names)} ({display_name(run.task, names)}, "
         f"seed {run.seed}, {run.last_env_steps()} steps)",

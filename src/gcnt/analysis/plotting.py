@@ -103,11 +103,14 @@ class FigureStyle:
         return [path.with_suffix(f".{f}") for f in dict.fromkeys(self.formats)]
 
     def save(self, fig, path: str | Path) -> list[Path]:
-        """Write ``fig`` to :meth:`outputs` (trimmed to what is drawn) and close it."""
+        """Write ``fig`` to :meth:`outputs` and close it: trimmed to what is drawn, or, with a
+        ``figsize``, on a page of exactly that size with everything drawn (legends beside the
+        axes included) fitted inside it (:func:`fit_page`)."""
         plt = pyplot()
         paths = self.outputs(path)
         try:
             with self.context():
+                page = fit_page(fig, self.figsize) if self.figsize is not None else "tight"
                 for p in paths:
                     p.parent.mkdir(parents=True, exist_ok=True)
                     with writing(p) as f:
@@ -115,11 +118,58 @@ class FigureStyle:
                             f,
                             format=p.suffix[1:].lower() or None,
                             dpi=self.dpi,
-                            bbox_inches="tight",
+                            bbox_inches=page,
                         )
         finally:
             plt.close(fig)
         return paths
+
+
+#: the white margin around what is drawn, inches (matplotlib's ``savefig.pad_inches``)
+PAGE_PAD = 0.05
+
+
+def fit_page(fig, size: tuple[float, float], tries: int = 6):
+    """The region of ``fig`` (a matplotlib ``Bbox`` in inches) to save as a page of exactly
+    ``size`` inches: the figure is shrunk and laid out again (``tight_layout``) until what is
+    drawn, with what hangs outside its axes (a legend beside them), fits the page; centred in
+    it. Where it cannot fit (a page too small for the text), the page keeps its size and a
+    warning says what was cut."""
+    import warnings
+
+    from matplotlib.transforms import Bbox
+
+    width, height = size
+    drawn = _drawn(fig)
+    for _ in range(tries):
+        over_w, over_h = drawn.width - width, drawn.height - height
+        if over_w <= 1e-3 and over_h <= 1e-3:
+            break
+        w, h = fig.get_size_inches()
+        new = (max(w - max(over_w, 0.0), 0.2 * width), max(h - max(over_h, 0.0), 0.2 * height))
+        if new == (w, h):
+            break
+        fig.set_size_inches(*new)
+        if fig.get_layout_engine() is None:
+            fig.tight_layout()
+        drawn = _drawn(fig)
+    else:
+        drawn = _drawn(fig)
+    if drawn.width > width + 1e-3 or drawn.height > height + 1e-3:
+        warnings.warn(
+            f"the figure's text needs {drawn.width:.2f} x {drawn.height:.2f} in; the page of "
+            f"{width:g} x {height:g} in cuts it (a smaller --font-size or a larger --figsize)",
+            stacklevel=3,
+        )
+    x0 = drawn.x0 - (width - drawn.width) / 2
+    y0 = drawn.y0 - (height - drawn.height) / 2
+    return Bbox.from_bounds(x0, y0, width, height)
+
+
+def _drawn(fig):
+    """What ``fig`` draws, inches, with the page's white margin."""
+    fig.canvas.draw()
+    return fig.get_tightbbox(fig.canvas.get_renderer()).padded(PAGE_PAD)
 
 
 def padded_limits(values: Iterable[float], margin: float = 0.05) -> tuple[float, float] | None:

@@ -326,8 +326,9 @@ def panels_figure(
     style: FigureStyle | None = None,
 ):
     """A panel per (statistic, set): each method's point estimate with its interval, the x range
-    holding every interval; with ``profile`` a row of performance profiles below. The caption
-    names the intervals and their n; methods and sets by their display names."""
+    holding every interval; with ``profile`` a row of performance profiles below; methods and
+    sets by their display names. Its caption (the intervals and their n) is written beside it
+    (:func:`gcnt.analysis.bars.caption`)."""
     from gcnt.analysis.plotting import padded_limits, pyplot
 
     plt = pyplot()
@@ -369,19 +370,8 @@ def panels_figure(
                 ax.set_ylabel("fraction of runs > τ")
                 ax.legend(fontsize="small")
                 ax.grid(alpha=0.3)
-        per_set = {
-            set_display(summary, n, style): protocols_text(i["protocol"] for i in e.values())
-            for n, e in summary.items()
-        }
-        if len(set(per_set.values())) == 1:
-            protocol = next(iter(per_set.values()))
-        else:
-            protocol = "; ".join(f"{n}: {text}" for n, text in per_set.items())
-        items = [item for entry in summary.values() for item in entry.values()]
-        caption = f"Intervals: {intervals_text(items)}.\nEvaluation: {protocol}."
-        fig.text(0.01, 0.005, caption, fontsize="x-small", va="bottom", wrap=True)
         style.suptitle(fig)
-        fig.tight_layout(rect=(0, 0.09 if nrows == 1 else 0.05, 1, 1))
+        fig.tight_layout()
     return fig
 
 

@@ -194,7 +194,8 @@ _TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#
         "±": r"$\pm$", "–": "--", "…": r"\dots{}"}  # fmt: skip
 
 
-def _tex(text: str) -> str:
+def tex_text(text: str) -> str:
+    """``text`` with LaTeX's special characters escaped."""
     return "".join(_TEX.get(c, c) for c in str(text))
 
 
@@ -210,10 +211,10 @@ def to_latex(table: dict[str, Any], style: FigureStyle | None = None) -> str:
         parts += [
             r"\begin{table}[t]",
             r"\centering",
-            rf"\caption{{{_tex(caption)}}}",
+            rf"\caption{{{tex_text(caption)}}}",
             rf"\begin{{tabular}}{{l{'r' * len(methods)}}}",
             r"\toprule",
-            " & ".join(["Robot", *(_tex(style.name(m)) for m in methods)]) + r" \\",
+            " & ".join(["Robot", *(tex_text(style.name(m)) for m in methods)]) + r" \\",
             r"\midrule",
         ]
         for robot in t["robots"]:
@@ -223,7 +224,7 @@ def to_latex(table: dict[str, Any], style: FigureStyle | None = None) -> str:
                 _fmt(row.get(m), bold == m, pm=r"$\pm$", mark=r"\textbf{{{}}}").replace("–", "--")
                 for m in methods
             ]
-            parts.append(" & ".join([_tex(robot), *cells]) + r" \\")
+            parts.append(" & ".join([tex_text(robot), *cells]) + r" \\")
         parts += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
     return "\n".join(parts)
 

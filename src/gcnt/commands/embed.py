@@ -36,7 +36,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from gcnt.analysis.embed import STRUCTURAL_METHODS, plot_embeddings, run_embedding
+    from gcnt.analysis.embed import (
+        STRUCTURAL_METHODS,
+        NoStructureError,
+        has_structure,
+        plot_embeddings,
+        run_embedding,
+    )
     from gcnt.analysis.embed import structural_vectors as vectors
     from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs, first_seed_per_method
@@ -49,14 +55,21 @@ def run(args: argparse.Namespace) -> int:
     found = find_runs(args.paths) if args.paths else []
     check_names(args, {*run_keys(found), *untrained})
     if args.paths:
-        runs = [r for r in found if r.method in STRUCTURAL_METHODS]
-        if not runs and args.untrained is None:
-            raise AnalysisError(
-                f"no GCNT or SWAT run in {', '.join(args.paths)} "
-                f"(methods with structural vectors: {', '.join(STRUCTURAL_METHODS)})"
-            )
+        runs = [r for r in found if has_structure(r.method)]
+        skipped = {r.method: "no per-limb structural vector" for r in found if r not in runs}
         for r in runs if args.all_seeds else first_seed_per_method(runs):
-            embeddings.append(run_embedding(r, args.robots, style.names))
+            try:
+                embeddings.append(run_embedding(r, args.robots, style.names))
+            except NoStructureError:
+                skipped[r.method] = "its chain writes no limbs/hidden and limbs/embed"
+        if skipped:
+            print("not embedded: " + "; ".join(f"{m} ({why})" for m, why in skipped.items()))
+        if not embeddings and args.untrained is None:
+            raise AnalysisError(
+                f"no run with structural vectors in {', '.join(args.paths)} "
+                f"(gcnt's methods with them: {', '.join(STRUCTURAL_METHODS)}; a plugin's method "
+                "whose chain writes limbs/hidden and limbs/embed)"
+            )
     for m in untrained:
         torch.manual_seed(args.seed)
         embeddings.append(vectors(m, args.robots, title=f"{style.name(m)} (untrained)"))

@@ -51,6 +51,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "recipe", None):
         return run_recipe(args.recipe, args.methods)
+    if getattr(args, "methods", None):
+        from gcnt.recipes import RecipeError
+
+        raise RecipeError(
+            "--methods counts methods at a recipe's sizes: give the recipe too (--recipe "
+            "quickstart, or a recipe file); without it `gcnt params` prints the paper's columns"
+        )
     setup = setup_of(args.benchmark)
     algo = ALGORITHM.get(setup.benchmark, "ppo")
     rows = count_table(args.benchmark)
@@ -105,7 +112,7 @@ def run_recipe(path: str, methods: str | None) -> int:
 
     from gcnt.analysis.params import METHODS
     from gcnt.nn import make_config
-    from gcnt.recipes import load_recipe
+    from gcnt.recipes import RecipeError, load_recipe
 
     recipe = load_recipe(path)
     benchmark, world = recipe.env.benchmark, recipe.env.world
@@ -117,6 +124,11 @@ def run_recipe(path: str, methods: str | None) -> int:
 
     if methods:
         names = [m.strip() for m in methods.split(",") if m.strip()]
+        for name in names:  # one line naming the method and what to change, not a traceback
+            try:
+                make_config(name, setup.preset, **sizes(name))
+            except (TypeError, ValueError) as e:
+                raise RecipeError(f"--methods {name}: {e}") from None
     else:
         names = []
         for name in METHODS.get(setup.benchmark, METHODS["unimal"]):

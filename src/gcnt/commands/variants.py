@@ -1,4 +1,4 @@
-"""``gcnt variants DIR... --sets variants-kinematics,variants-dynamics``: returns on robot variant
+r"""``gcnt variants DIR... --sets variants-kinematics,variants-dynamics``: returns on robot variant
 sets (paper figure 8) per method, with intervals over seeds of each seed's aggregate over the
 set's robots: a 95% confidence interval from a stratified bootstrap (rliable's interval for few
 runs) where every task has at least 5 seeds, else the range of the seeds' aggregates, called so.
@@ -13,8 +13,10 @@ bars, one panel per set (:mod:`gcnt.analysis.bars`); ``--panels`` also writes th
 ``variants-panels.png``. ``--iqm`` adds the interquartile mean. Writes ``variants.png``
 (``--format pdf,svg``: those; the figure options set size, fonts, title and display names; a
 robot name pattern as a set is shown as the robots it matched), ``variants.md``,
-``variants.json`` and ``variants.caption.txt``: the gcnt versions and commits of the runs (also
-the last line of the Markdown).
+``variants.json``, and the figure's caption beside it (never in its title): what the error bars
+are, the evaluation protocol and the gcnt versions and commits of the runs, as
+``variants.caption.txt``, as ``variants.caption.tex`` (``\caption{...}``) and as the last line
+of the Markdown.
 """
 
 from __future__ import annotations
@@ -71,7 +73,9 @@ def run(args: argparse.Namespace) -> int:
         )
     summary = V.variant_summary(runs, sets, stats, args.confidence, args.reps, args.seed)
     out = args.out or default_out(args.paths)
+    from gcnt.analysis.bars import caption as figure_caption
     from gcnt.analysis.bars import plot_bars
+    from gcnt.analysis.zeroshot import tex_text
 
     style = figure_style(args)
     plot_bars(summary, out / f"{args.name}.png", stats, style=style)
@@ -79,9 +83,12 @@ def run(args: argparse.Namespace) -> int:
     if args.panels or args.profile:
         V.plot(summary, out / f"{args.name}-panels.png", stats, args.profile, style)
         figures += style.outputs(out / f"{args.name}-panels.png")
-    caption = provenance.caption(r.path for r in runs)
+    code = provenance.caption(r.path for r in runs)
+    caption = f"{figure_caption(summary)} {code[0].upper()}{code[1:]}."
     md = out / f"{args.name}.md"
     write_text(md, f"{V.to_markdown(summary, stats, style)}\n_{caption}_\n")
+    tex = out / f"{args.name}.caption.tex"
+    write_text(tex, f"\\caption{{{tex_text(caption)}}}\n")
     js = V.write_json(summary, out / f"{args.name}.json")
     print(V.to_markdown(summary, stats, style))
     missing = [s for s in sets if s not in summary]
@@ -89,6 +96,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"no evaluations for: {', '.join(missing)}")
     print(caption)
     cap = provenance.write_caption(caption, out / f"{args.name}.caption.txt")
-    for path in [*figures, md, js, cap]:
+    for path in [*figures, md, js, cap, tex]:
         print(f"written: {path}")
     return 0

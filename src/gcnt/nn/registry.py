@@ -150,6 +150,9 @@ register_network(
     "mlp", MLPConfig, mlp_backbone, description="SR (one MLP per robot)", fixed_limbs=True
 )
 
+#: the methods gcnt itself registers (the others come from plugins)
+BUILT_IN = frozenset(NETWORKS)
+
 
 def make_config(name: str, preset: str = "smpenv", **overrides: Any) -> NetConfig:
     """The config of method ``name`` at ``preset`` sizes with ``overrides``."""
@@ -160,6 +163,33 @@ def make_config(name: str, preset: str = "smpenv", **overrides: Any) -> NetConfi
         if key in overrides and overrides[key] != value:
             raise ValueError(f"network {name!r} fixes {key}={value}; got {key}={overrides[key]}")
     return entry.config.preset(preset, **{**overrides, **entry.fixed})
+
+
+def shared_sizes(name: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """What a recipe's shared sizes (``network.kwargs``) give method ``name``: all of them
+    where its config has every one; none where its config has none of them and each is a field
+    of another method's config (sizes of another family of methods, e.g. the Transformers'
+    ``d_model``: the method runs at its preset's sizes); otherwise a ValueError naming the
+    override that gives the method sizes of its own."""
+    kwargs = dict(kwargs)
+    if not kwargs or name not in NETWORKS:
+        return kwargs
+    config = NETWORKS[name].config
+    fields = config.field_names()
+    missing = [k for k in kwargs if k not in fields]
+    if not missing:
+        return kwargs
+    elsewhere = {f for entry in NETWORKS.values() for f in entry.config.field_names()}
+    if len(missing) == len(kwargs) and all(k in elsewhere for k in missing):
+        return {}
+    unknown = [k for k in missing if k not in elsewhere]
+    if unknown:  # a field of no method: a typo, named with the closest fields
+        config.check_overrides({k: None for k in unknown})
+    raise ValueError(
+        f"network.kwargs sets {', '.join(missing)}, not fields of {config.__name__} (method "
+        f"{name!r}; its fields: {', '.join(fields)}): give {name} sizes of its own, e.g. "
+        f"network.method_kwargs.{name}={{}} for its preset's"
+    )
 
 
 def make_network(

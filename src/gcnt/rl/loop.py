@@ -35,6 +35,7 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt import keys as K
+from gcnt import provenance
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl import init_from, stop
@@ -51,6 +52,7 @@ from gcnt.rl.run_dir import (
     seed_everything,
     set_rng_state,
 )
+from gcnt.rl.run_logger import RunLogger
 
 log = logging.getLogger(__name__)
 
@@ -359,7 +361,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
     if resume:
         env.set_seed(recipe.seed + env_steps)  # fresh episodes, a seed that differs per resume
     cadence = Cadence(recipe, env_steps)
-    logger = make_logger(recipe, run)
+    logger = make_logger(recipe, run, robots)
     stats = TrainStats([robot.name for robot in robots], env_steps, algo.updates)
     if env_steps < total:
         settings = algo.collect_settings(env_steps)
@@ -633,6 +635,8 @@ class Cadence:
         if self.next_eval is not None and env_steps >= self.next_eval and not last:
             _evaluate(recipe, run, algo, logger, env_steps)
             self.next_eval = _next_multiple(env_steps, recipe.eval.interval)
+        if logger is not None and not last:  # the last row waits for the final evaluation
+            logger.flush()
         return row
 
 
@@ -674,9 +678,11 @@ def finish(
     *,
     evaluate_now: bool = True,
 ) -> dict | None:
-    """The final evaluation (unless not ``evaluate_now``), and the logger's run closed; returns
-    the evaluation's results per robot (None when none ran)."""
+    """The final evaluation (unless not ``evaluate_now``; in the W&B run's summary), and the
+    logger's run closed; returns the evaluation's results per robot (None when none ran)."""
     results = _evaluate(recipe, run, algo, logger, env_steps) if evaluate_now else None
+    if logger is not None and results is not None:
+        logger.summarize(results, env_steps)
     signame = stop.requested()
     if signame is not None and evaluate_now:
         # training was already complete and checkpointed; the evaluation is not cut short
@@ -685,8 +691,9 @@ def finish(
             "last checkpoint is written), so the evaluation was completed before stopping",
             signame, run.path,
         )  # fmt: skip
-    if logger is not None and hasattr(getattr(logger, "experiment", None), "finish"):
-        logger.experiment.finish()
+    if logger is not None:
+        logger.save_files(run.recipe_path, run.path / provenance.PROVENANCE_FILE, base=run.path)
+        logger.close()
     return results
 
 
@@ -694,12 +701,10 @@ def _next_multiple(x: int, every: int) -> int:
     return (x // every + 1) * every if every > 0 else 2**62
 
 
-def _log_row(run: RunDir, logger, row: dict) -> None:
+def _log_row(run: RunDir, logger: RunLogger | None, row: dict) -> None:
     run.log_metrics(row)
     if logger is not None:
-        for k, v in row.items():
-            if k != "env_steps":
-                logger.log_scalar(k, v, step=row["env_steps"])
+        logger.add(row["env_steps"], {k: v for k, v in row.items() if k != "env_steps"})
     log.info(
         "env_steps %d  updates %d  return %.1f  %.0f steps/s",
         row["env_steps"],
@@ -827,10 +832,11 @@ def _evaluate(
         },
     )
     if logger is not None:
-        for name, res in results.items():
-            logger.log_scalar(f"eval_return/{name}", res["mean"], step=env_steps)
+        logger.add(env_steps, {f"eval_return/{name}": res["mean"] for name, res in results.items()})
     log.info("eval at %d steps written to %s", env_steps, Path(path))
     if recipe.eval.video:
         out = render_policy(recipe, policy, run.inside("videos") / f"step{env_steps}.mp4")
         log.info("video written to %s", out)
+        if logger is not None:
+            logger.add_video(env_steps, out)
     return results

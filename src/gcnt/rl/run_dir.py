@@ -14,7 +14,7 @@ import os
 import random
 import shutil
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,7 @@ import torch
 
 from gcnt import provenance
 from gcnt.files import GiB, append_text, open_regular, rename, save_torch, write_text
+from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError, load_run_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
@@ -31,6 +32,7 @@ from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: 
     read_metrics_row,
     strict_json,
 )
+from gcnt.rl.run_logger import RunLogger
 
 log = logging.getLogger(__name__)
 
@@ -470,12 +472,16 @@ def check_logger(recipe: Recipe) -> None:
 MAX_TAG = 64
 
 
-def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
-    """torchrl logger per the recipe (None for backend "none"). ``concurrent``: other runs of
-    this process log at the same time (each W&B run is then created beside the others).
+def make_logger(
+    recipe: Recipe, run: RunDir, robots: Sequence[Robot] = (), *, concurrent: bool = False
+) -> RunLogger | None:
+    """The run's torchrl logger per the recipe, fed one row per log step
+    (:class:`gcnt.rl.run_logger.RunLogger`; None for backend "none"). ``concurrent``: other runs
+    of this process log at the same time (each W&B run is then created beside the others).
 
-    A W&B run is tagged ``seed:N`` (and ``logger.tags``); its config is the recipe, the method
-    and the code of the running process (gcnt version, commit, uncommitted changes). A resumed run
+    A W&B run is tagged ``seed:N`` (and ``logger.tags``); its config is the recipe, the method,
+    the training ``robots`` (name: hash of the robot's MJCF) and the code of the running process
+    (gcnt version, commit, uncommitted changes, plugin files). A resumed run
     continues the same W&B run (:func:`wandb_id`), but W&B writes each session to a folder of
     its own (``<run>/wandb/offline-run-<start time>-<id>``, whatever ``resume`` says); ``wandb
     sync`` uploads a run's folders into that one W&B run, in the order they were started."""
@@ -487,13 +493,13 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
     if cfg.backend == "csv":
         from torchrl.record.loggers import CSVLogger
 
-        return CSVLogger(exp_name=name, log_dir=str(run.inside("csv")))
+        return RunLogger(CSVLogger(exp_name=name, log_dir=str(run.inside("csv"))))
     from torchrl.record.loggers import WandbLogger
 
     os.environ.setdefault("WANDB_SILENT", "true")
     project = cfg.project or f"gcnt-{_slug(recipe.env.benchmark)}"
     group = cfg.group or f"{recipe.task}-{recipe.algo}-{method}"
-    return WandbLogger(
+    logger = WandbLogger(
         exp_name=name,
         offline=cfg.mode == "offline",
         # also to wandb.init itself: W&B keeps the settings of its first use in a process, so
@@ -503,11 +509,22 @@ def make_logger(recipe: Recipe, run: RunDir, *, concurrent: bool = False):
         project=project,
         group=group,
         tags=list(dict.fromkeys([*cfg.tags, f"seed:{recipe.seed}"])),
-        config={**recipe.to_dict(), "method": method, "code": _code(run)},
+        config={
+            **recipe.to_dict(),
+            "method": method,
+            "code": _code(run),
+            "robots": {r.name: robot_hash(r) for r in robots},
+        },
         id=wandb_id(run, name),
         resume="allow",
         **({"reinit": "create_new"} if concurrent else {}),
     )
+    return RunLogger(logger)
+
+
+def robot_hash(robot: Robot) -> str:
+    """A short hash of a robot's MJCF text: equal robots, equal hashes, whatever their files."""
+    return hashlib.sha256(robot.xml.encode()).hexdigest()[:16]
 
 
 def wandb_id(run: RunDir, name: str) -> str:
@@ -521,14 +538,14 @@ def wandb_id(run: RunDir, name: str) -> str:
 
 
 def _code(run: RunDir) -> dict[str, Any]:
-    """gcnt version, commit and uncommitted changes of the run's latest session (empty where
-    the run has no readable provenance)."""
+    """gcnt version, commit, uncommitted changes and plugin files of the run's latest session
+    (empty where the run has no readable provenance)."""
     try:
         sessions = provenance.read_sessions(run.path)
     except provenance.ProvenanceError:
         sessions = []
     last = sessions[-1] if sessions else {}
-    return {k: last[k] for k in ("gcnt_version", "git_commit", "git_dirty") if k in last}
+    return {k: last[k] for k in ("gcnt_version", "git_commit", "git_dirty", "plugins") if k in last}
 
 
 def _slug(text: str) -> str:

@@ -355,16 +355,20 @@ def _import_into(path: str | Path, name: str, out: Path) -> ImportedSet:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()  # this import's own folder: every file is written below it
     splits: dict[str, list[str]] = {}
-    origin: dict[str, str] = {}
+    origin: dict[str, list[str]] = {}
     try:
         with read_set(path) as members:
             for member in members:
-                _check_unique(member, origin, defined.robots)
+                _check_other_catalogues(member, defined.robots)
+                origin.setdefault(member.name, []).append(member.where)
+                if len(origin[member.name]) > 1:
+                    continue  # named with the others once every file was read
                 data = check_member(member)
                 dest = tmp / member.set / "xml" / f"{member.name}.xml"
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 write_bytes(dest, data)
                 splits.setdefault(SETS[member.set], []).append(member.name)
+        _check_unique(origin)
         write_text(tmp / IMPORTED_INDEX, split_yaml(name, str(Path(path).resolve()), splits))
         write_text(
             tmp / ".gitignore",
@@ -469,14 +473,21 @@ def _remove_stale(out: Path) -> None:
             pass  # another user's live process
 
 
-def _check_unique(member: Member, origin: dict[str, str], robots: dict[str, str]) -> None:
-    """A robot name is one robot: not twice in the set, not a robot of another catalogue."""
-    if member.name in origin:
+def _check_unique(origin: dict[str, list[str]]) -> None:
+    """A robot name is one robot: every name the set holds twice or more, with its files, in
+    one line (``origin``: name -> the files of that name, in the order read)."""
+    twice = {name: files for name, files in origin.items() if len(files) > 1}
+    if twice:
+        each = "; ".join(f"{name!r} ({', '.join(files)})" for name, files in twice.items())
         raise UnimalImportError(
-            f"{member.where}: robot {member.name!r} is also {origin[member.name]}; a robot name "
+            f"robot names given to more than one file ({len(twice)}): {each}; a robot name "
             "names one robot"
         )
-    origin[member.name] = member.where
+
+
+def _check_other_catalogues(member: Member, robots: dict[str, str]) -> None:
+    """A robot name of the set is not a robot of another catalogue (``robots``: name ->
+    catalogue)."""
     other = robots.get(member.name)
     if other is not None:
         raise UnimalImportError(

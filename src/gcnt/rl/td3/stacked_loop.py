@@ -150,7 +150,10 @@ def _lockstep(
     env_steps = [0] * n
     total = recipes[0].collector.total_frames
     cadences = [Cadence(r, 0) for r in recipes]
-    loggers = [make_logger(r, run, concurrent=True) for r, run in zip(recipes, runs, strict=True)]
+    loggers = [
+        make_logger(r, run, p.robots, concurrent=True)
+        for r, run, p in zip(recipes, runs, prepared, strict=True)
+    ]
     stats = [TrainStats([robot.name for robot in p.robots], 0, p.algo.updates) for p in prepared]
     collectors = []
     t0 = time.perf_counter()
