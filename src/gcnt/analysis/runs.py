@@ -22,7 +22,6 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from gcnt import plugins
 from gcnt.files import MiB, read_json, read_yaml
 from gcnt.suggest import existing_path
 
@@ -615,9 +614,6 @@ def find_runs(paths: Iterable[str | Path]) -> list[Run]:
         raise AnalysisError(
             f"no run directories (with {RECIPE_FILE}) under {', '.join(map(str, paths))}"
         )
-    for run in runs.values():  # what the runs were trained with: their methods, benchmarks...
-        listed = run.recipe.get("plugins") or []
-        plugins.load([p for p in listed if isinstance(p, str)], via=f"the run {run.path}")
     return sorted(runs.values(), key=lambda r: (r.task, method_key(r.method), r.seed, str(r.path)))
 
 
