@@ -126,7 +126,9 @@ def test_a_plugin_run_records_its_plugin_and_needs_it_named_wherever_the_file_mo
         "--plugin", str(new), "train", str(moved / "recipe.yaml"), "--init-from", str(run),
         f"run_dir={ft}", "env.robots=[hopper_4]", "env.test_robots=[hopper_5]", cwd=tmp_path,
     )  # fmt: skip
-    assert RunDir(ft).load_recipe().resolved["init_from"]["run"] == str(run)
+    ft_recipe = yaml.safe_load((ft / "recipe.yaml").read_text())
+    assert ft_recipe["resolved"]["init_from"]["run"] == str(run)
+    assert ft_recipe["resolved"]["plugins"] == [{"name": "my_methods.py", "sha256": sha}]
     # a changed plugin of the same name: a warning naming both hashes
     new.write_text(new.read_text() + "\n# changed\n")
     done = subprocess.run(
@@ -144,11 +146,14 @@ def test_a_sweep_with_a_plugin_method_leaves_its_other_runs_free_of_it(tmp_path,
     sw = tmp_path / "sw"
     argv = ["--plugin", str(plugin), "sweep", str(QUICKSTART), "--methods", "plugnet,gcnt"]
     argv += ["--seeds", "0", "--jobs", "1", "--dir", str(sw), "--eval", "test", "--episodes", "1"]
-    assert gcnt([*argv, *TINY_SWEEP_OVERRIDES]) == 0  # the runs: `python -m gcnt.cli` children
+    try:  # the runs: `python -m gcnt.cli` children
+        assert gcnt([*argv, *TINY_SWEEP_OVERRIDES]) == 0
+    finally:
+        _forget("my_methods", plugin.parent)
     manifest = json.loads((sw / "manifest.json").read_text())
     assert {r["state"] for r in manifest["runs"]} == {"done"}
     assert not any("plugins=" in o for r in manifest["runs"] for o in r["overrides"])
-    runs = {r["method"]: Path(r["run_dir"]) for r in manifest["runs"]}
+    runs = {r["method"]: sw / r["run_dir"] for r in manifest["runs"]}
     shutil.move(plugin.parent, tmp_path / "moved")
     # reading results needs no code: curves and zeroshot in a fresh process, no plugin named
     assert "plugnet" in _gcnt("curves", str(sw), "--out", str(tmp_path / "fig"), cwd=tmp_path)

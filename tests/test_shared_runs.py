@@ -6,6 +6,7 @@ evaluate, resume and plot."""
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import shutil
 from pathlib import Path
@@ -159,3 +160,63 @@ def test_a_run_that_predates_stored_robots_evaluates_resumes_and_plots(tmp_path,
     assert "robots" in yaml.safe_load((run / "recipe.yaml").read_text())["resolved"]
     assert (run / "robots").is_dir()  # the resumed run now keeps its robots
     assert gcnt_main(["curves", str(run), "--out", str(tmp_path / "fig")]) == 0
+
+
+def _payload(path: Path, marker: Path) -> Path:
+    path.write_text(f"open({str(marker)!r}, 'a').write('ran {path.name}\\n')\n")
+    return path
+
+
+def test_a_received_run_or_sweep_runs_no_code_it_names(tmp_path, monkeypatch, capsys):
+    """A run and a sweep naming payloads (by absolute path, by a path relative to the run, by a
+    module name that would import) in every place they record plugins: no command runs any."""
+    marker = tmp_path / "RAN"
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    absolute = _payload(elsewhere / "payload_abs.py", marker)
+    _payload(elsewhere / "payload_mod.py", marker)
+    monkeypatch.syspath_prepend(str(elsewhere))  # the module name would import
+    run = _old_run(tmp_path)
+    _payload(run / "payload_rel.py", marker)
+    named = [str(absolute), "payload_rel.py", "payload_mod"]
+    data = yaml.safe_load((run / "recipe.yaml").read_text())
+    data["plugins"] = named
+    data["init_from"] = None
+    data["resolved"] = {**data.get("resolved", {}), "plugins": [{"name": n} for n in named]}
+    (run / "recipe.yaml").write_text(yaml.safe_dump(data))
+    monkeypatch.chdir(run)
+    out = tmp_path / "out"
+    commands = [
+        ["eval", str(run), "--robots", "train", "--episodes", "1"],
+        ["train", "--resume", str(run), "collector.total_frames=45"],
+        ["curves", str(run), "--out", str(out)],
+        ["zeroshot", str(run), "--out", str(out)],
+        ["variants", str(run), "--out", str(out)],
+        ["embed", str(run), "--robots", "hopper_3", "walker_2_main", "--out", str(out)],
+        ["strobe", str(run), "--robot", "hopper_3", "--steps", "5", "--out", str(out)],
+    ]
+    clean = {k: v for k, v in data.items() if k not in ("plugins", "resolved", "run_dir")}
+    (tmp_path / "clean.yaml").write_text(yaml.safe_dump(clean))
+    commands.append(
+        ["train", str(tmp_path / "clean.yaml"), "--init-from", str(run), f"run_dir={out}/ft"]
+    )
+    # a received sweep: its manifest's runs name the payloads (an override) and so does the
+    # recipe it trains from
+    sweep = tmp_path / "sw"
+    assert gcnt_main(["sweep", str(tmp_path / "clean.yaml"), "--dry-run", "--dir", str(sweep)]) == 0
+    (sweep / "recipe.yaml").write_text(yaml.safe_dump({**clean, "plugins": named}))
+    manifest = json.loads((sweep / "manifest.json").read_text())
+    for r in manifest["runs"]:
+        r["recipe"] = str(sweep / "recipe.yaml")
+        r["overrides"].append(f"plugins={json.dumps(named)}")
+    (sweep / "manifest.json").write_text(json.dumps(manifest))
+    commands += [["sweep", str(sweep), "--status"], ["sweep", str(sweep), "--jobs", "1"]]
+    for argv in commands:
+        capsys.readouterr()
+        rc = gcnt_main(argv)
+        err = capsys.readouterr().err
+        assert not marker.exists(), (argv, marker.read_text())
+        # zeroshot and variants read the run, then find no evaluation of theirs to show
+        assert rc == (2 if argv[0] in ("zeroshot", "variants") else 0), (argv, err[-2000:])
+    assert json.loads((sweep / "manifest.json").read_text())["runs"][0]["state"] == "done"
+    assert not marker.exists()

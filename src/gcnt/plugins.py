@@ -298,10 +298,10 @@ def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[st
         first = missing[0]
         sha = f" (sha256 {_short(first['sha256'])})" if first["sha256"] else ""
         raise PluginError(
-            f"{run} names {', '.join(map(repr, needed))}, registered by the plugin "
-            f"{first['name']}{sha} it was trained with, which this command did not name; gcnt "
-            f"never imports a run's plugins: pass it with `gcnt --plugin PATH_OR_MODULE ...` "
-            f"(or {ENV_VAR})"
+            f"{run} names {', '.join(needed)}, which no code imported here registers; it was "
+            f"trained with the plugin {first['name']}{sha}, which this command did not name "
+            f"(gcnt never imports a run's plugins): pass it with `gcnt --plugin "
+            f"PATH_OR_MODULE ...` (or {ENV_VAR})"
         )
 
 

@@ -227,9 +227,10 @@ class Recipe:
     #: cpu | cuda | cuda:N
     device: str = "cpu"
     #: your own modules (``my_pkg.methods``) or .py files (relative to the recipe file),
-    #: imported before the recipe is read: the methods, benchmarks and algorithms they register
-    #: can be named here (:mod:`gcnt.plugins`). A run records every plugin it was trained with
-    #: (``--plugin``, GCNT_PLUGINS, its ``init_from`` run's)
+    #: imported before a recipe file given to ``gcnt train`` or ``gcnt sweep`` is read: the
+    #: methods, benchmarks and algorithms they register can be named here (:mod:`gcnt.plugins`).
+    #: A run records its plugins by identity (``resolved.plugins``) and never imports them; its
+    #: recipe read back lists the plugins of the command reading it
     plugins: list[str] = field(default_factory=list)
     #: run directory (default: runs/<task>/<algo>-<network>/seed<seed>)
     run_dir: str | None = None

@@ -560,11 +560,24 @@ class Run:
                 wanted.update(_robot_names([spec], self.recipe))
         return [r for r in record.robots if r in wanted]
 
+    def _recorded_names(self, key: str) -> list[str] | None:
+        """The names of the run's ``train`` or ``test`` robots as it recorded them
+        (``resolved.robots``; None for a run written before robots were stored)."""
+        names = _get(self.recipe, "resolved", "robots", key)
+        return [n for n in names if isinstance(n, str)] if isinstance(names, list) else None
+
     def test_robot_names(self) -> list[str]:
-        """Names of the recipe's test robots, resolved through the robot catalogues."""
+        """Names of the recipe's test robots: as the run recorded them, else resolved through the
+        robot catalogues."""
+        recorded = self._recorded_names("test")
+        if recorded is not None:
+            return recorded
         return _robot_names(self.test_robot_specs, self.recipe)
 
     def train_robot_names(self) -> list[str]:
+        recorded = self._recorded_names("train")
+        if recorded:
+            return recorded
         names = _robot_names(self.train_robot_specs, self.recipe)
         if names:
             return names
