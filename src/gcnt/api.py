@@ -34,7 +34,7 @@ class LoadedRun:
     recipe: dict[str, Any]
     #: the rows of ``metrics.jsonl`` (one per log step)
     metrics: list[dict[str, Any]]
-    #: the evaluation files under ``eval/`` (:class:`gcnt.analysis.runs.EvalRecord`)
+    #: the evaluation files under ``eval/`` (:class:`gcnt.run_data.EvalRecord`)
     evaluations: list[Any]
 
     @property
@@ -47,7 +47,7 @@ class LoadedRun:
 
 def load_run(run: str | Path) -> LoadedRun:
     """The record of the run directory ``run``, its metrics and its evaluations."""
-    from gcnt.analysis.runs import RECIPE_FILE, AnalysisError, Run
+    from gcnt.run_data import RECIPE_FILE, AnalysisError, Run
 
     path = Path(run)
     if not (path / RECIPE_FILE).is_file():

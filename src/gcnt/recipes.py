@@ -745,7 +745,11 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
 
 
 def load_run_recipe(
-    path: str | Path, overrides: list[str] | None = None, *, anywhere: bool = False
+    path: str | Path,
+    overrides: list[str] | None = None,
+    *,
+    anywhere: bool = False,
+    stored_robots: bool = True,
 ) -> Recipe:
     """The recipe a run recorded (its ``recipe.yaml``), to go on with here, with ``overrides``.
 
@@ -760,7 +764,8 @@ def load_run_recipe(
     (:func:`gcnt.run_record.check_plugins`: one that the run needs and the command did not name
     is an error naming it), and the recipe's ``plugins`` are this command's own. Its robots are
     the ones it recorded, read from its own copies where not registered here
-    (:func:`gcnt.run_record.use_stored_robots`)."""
+    (:func:`gcnt.run_record.use_stored_robots`; ``stored_robots=False``: not yet, so that a
+    command can check what it was asked before the robot catalogues are loaded)."""
     from gcnt import plugins
     from gcnt.run_record import check_plugins, use_stored_robots
 
@@ -768,7 +773,8 @@ def load_run_recipe(
     check_plugins(Path(path).parent, recorded)
     recipe = _load_run_recipe(recorded, path, overrides, anywhere)
     recipe.plugins = plugins.session()
-    use_stored_robots(recipe, Path(path).parent, recorded)
+    if stored_robots:
+        use_stored_robots(recipe, Path(path).parent, recorded)
     return recipe
 
 

@@ -119,20 +119,26 @@ def store_robots(run_dir: str | Path, robots: Iterable[Any]) -> None:
         _write_once(folder / f"{hashlib.sha256(data).hexdigest()}.xml", data)
 
 
-def use_stored_robots(recipe: Any, run_dir: str | Path, recorded: Mapping[str, Any]) -> None:
+def use_stored_robots(
+    recipe: Any, run_dir: str | Path, recorded: Mapping[str, Any] | None = None
+) -> None:
     """Resolve ``recipe``'s robot lists to the robots the run recorded (``recorded``: the recipe
-    as its run wrote it; a list an override changed is resolved as given). A catalogue robot
+    as its run wrote it, read again if not given; a list an override changed is resolved as
+    given). A catalogue robot
     registered here is used as registered (a warning names both hashes where its MJCF differs
     from the stored one); any other robot (a robot file given by path, a robot of an imported
     set since gone) is read from the run's own copy
     (:func:`gcnt.morphology.catalogues.pin_robots`): a list of one spec keeps its spec, pinned
     to the stored robots; a longer one lists the robots by name."""
-    from gcnt.morphology.catalogues import pin_robots
-
     record = (recipe.resolved or {}).get(ROBOTS_KEY)
     if not isinstance(record, Mapping) or not isinstance(record.get("index"), Mapping):
         _predates(run_dir)
         return
+    from gcnt.morphology.catalogues import pin_robots
+    from gcnt.recipes import read_recipe_file
+
+    if recorded is None:
+        recorded = read_recipe_file(Path(run_dir) / "recipe.yaml")
     env = recorded.get("env") if isinstance(recorded.get("env"), Mapping) else {}
     folder = Path(run_dir) / ROBOTS_DIR
     index = record["index"]

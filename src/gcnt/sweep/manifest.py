@@ -12,8 +12,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from gcnt.analysis.runs import RECIPE_FILE, Run
 from gcnt.files import KiB, MiB, read_json, read_text, write_text
+from gcnt.run_data import RECIPE_FILE, Run
 from gcnt.sweep.spec import RunSpec
 from gcnt.sweep.status import SweepError, now, read_record, slurm_states
 

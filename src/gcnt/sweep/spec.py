@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gcnt.analysis.runs import CHECKPOINT, RECIPE_FILE, Run
+from gcnt.run_data import CHECKPOINT, RECIPE_FILE, Run
 from gcnt.sweep.status import ACTIVE, SLURM_FAILED, SLURM_REQUEUED, SLURM_RUNNING, SLURM_WAITING
 
 
