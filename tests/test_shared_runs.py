@@ -228,3 +228,50 @@ def test_rl_reads_runs_through_the_layer_below_it():
     rl = ROOT / "src" / "gcnt" / "rl"
     users = [p.name for p in rl.rglob("*.py") if "gcnt.analysis.runs" in p.read_text()]
     assert users == []
+
+
+_BOX_OBJ = (
+    "".join(
+        f"v {x} {y} {z}\n"
+        for z in (-0.05, 0.05)
+        for x, y in ((-0.05, -0.05), (0.05, -0.05), (0.05, 0.05), (-0.05, 0.05))
+    )
+    + "f 1 2 3\nf 1 3 4\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\n"
+)
+_BOX_OBJ += "f 4 1 5\nf 4 5 8\n"
+
+
+def test_a_stored_robot_keeps_the_asset_files_it_references(tmp_path):
+    """A robot file whose mesh lives in a folder of its own (``meshdir``): the run stores the
+    mesh beside the MJCF, named by its hash, and the stored copy compiles once the robot's folder
+    is gone."""
+    import re
+
+    from gcnt.morphology.robot import load_robot
+    from gcnt.run_record import store_robots
+
+    folder = tmp_path / "mine"
+    (folder / "meshes").mkdir(parents=True)
+    (folder / "meshes" / "box.obj").write_text(_BOX_OBJ)
+    text = HOPPER.read_text().replace(
+        "<worldbody>", '<asset><mesh name="box" file="box.obj"/></asset>\n<worldbody>', 1
+    )
+    text = re.sub(
+        r'(<body name="torso"[^>]*>)',
+        r'\1<geom type="mesh" mesh="box" contype="0" conaffinity="0" density="0"/>',
+        text,
+        count=1,
+    )
+    text = text.replace("<compiler", '<compiler meshdir="meshes"', 1)
+    (folder / "meshy.xml").write_text(text)
+    robot = load_robot(folder / "meshy.xml")
+    run = tmp_path / "run"
+    store_robots(run, [robot])
+    sha = robot_sha256(robot)
+    mesh = hashlib.sha256(_BOX_OBJ.encode()).hexdigest()
+    assert (run / "robots" / "assets" / f"{mesh}.obj").read_text() == _BOX_OBJ
+    shutil.rmtree(folder)
+    catalogues.pin_robots("meshy", [("meshy", run / "robots" / f"{sha}.xml", "hopper", "smpenv")])
+    (again,) = catalogues.resolve_robots(["meshy"])
+    assert again.name == "meshy" and again.compile().nmesh == 1
+    assert robot_sha256(again) == sha
