@@ -45,6 +45,9 @@ ENV_VAR = "GCNT_PLUGINS"
 #: the entry-point group of installed packages' plugins
 ENTRY_POINT_GROUP = "gcnt.plugins"
 
+#: the largest plugin source hashed (a module is kilobytes)
+MAX_SOURCE_BYTES = 64 << 20
+
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 #: plugin (as named) -> {"plugin", "via", "file", "name", "sha256"}: every plugin imported here
@@ -170,10 +173,13 @@ def source_hash(file: str | Path | None) -> str | None:
     """The sha256 of a plugin's source file (None where it has none)."""
     if not file:
         return None
+    from gcnt.files import read_regular
+
     try:
-        return hashlib.sha256(Path(file).read_bytes()).hexdigest()
+        data = read_regular(file, MAX_SOURCE_BYTES, "a plugin's source is a Python file", OSError)
     except OSError:
         return None
+    return hashlib.sha256(data).hexdigest()
 
 
 def load_entry_points() -> list[str]:

@@ -10,6 +10,7 @@ a comment; a YAML key that is not declared is an error that names it and suggest
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import importlib
 import logging
@@ -734,7 +735,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     """
     data = read_recipe_file(path)
     source = str(find_recipe(path))
-    effective = yaml.safe_load(yaml.safe_dump(data))
+    effective = copy.deepcopy(data)
     with contextlib.suppress(RecipeError):  # a bad override: recipe_from_dict says what
         for o in overrides or []:
             _apply_override(effective, o)

@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from gcnt.files import write_bytes
+from gcnt.files import MiB, read_regular, write_bytes
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 ROBOTS_DIR = "robots"
 #: the folder (inside :data:`ROBOTS_DIR`) of the asset files stored robots reference
 ASSETS_DIR = "assets"
+#: the largest asset file (a mesh, a texture) a run stores with its robot
+MAX_ASSET_BYTES = 256 * MiB
 #: the keys of the record in a recipe's ``resolved:`` section
 ROBOTS_KEY, PLUGINS_KEY = "robots", "plugins"
 #: ``<compiler>`` attributes that prefix asset file names (dropped: stored names are complete)
@@ -52,7 +54,8 @@ def stored_form(robot: Any) -> tuple[str, dict[str, bytes]]:
         return robot.xml, {}
     assets: dict[str, bytes] = {}
     for el in files:
-        data = Path(el.get("file")).read_bytes()  # absolute: the robot loader made it so
+        # absolute: the robot loader made it so
+        data = read_regular(el.get("file"), MAX_ASSET_BYTES, "a robot's asset file", OSError)
         name = f"{ASSETS_DIR}/{hashlib.sha256(data).hexdigest()}{Path(el.get('file')).suffix}"
         assets[name] = data
         el.set("file", name)
