@@ -275,3 +275,23 @@ def test_a_stored_robot_keeps_the_asset_files_it_references(tmp_path):
     (again,) = catalogues.resolve_robots(["meshy"])
     assert again.name == "meshy" and again.compile().nmesh == 1
     assert robot_sha256(again) == sha
+
+
+def test_a_train_start_resolves_each_robot_list_once(tmp_path, monkeypatch):
+    """One ``gcnt train`` (checks, env, record, the final evaluation of training and test
+    robots) resolves its training list and its test list once each."""
+    import gcnt.rl.evaluate
+    import gcnt.rl.factories
+
+    calls = []
+    real = catalogues.resolve_robots
+
+    def counted(specs, **kw):
+        calls.append(list(specs))
+        return real(specs, **kw)
+
+    for module in (catalogues, gcnt.rl.factories, gcnt.rl.evaluate):
+        monkeypatch.setattr(module, "resolve_robots", counted)
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4"])
+    assert gcnt_main(["train", str(recipe), f"run_dir={tmp_path / 'run'}"]) == 0
+    assert sorted(calls) == [["hopper_3"], ["hopper_4"]]
