@@ -107,11 +107,9 @@ class TD3Config:
         """A random phase as long as the run is refused: the policy would never act."""
         random = self.random_frames(num_robots)
         if random >= total_frames:
-            per = (
-                f" x {num_robots} robots (td3.random_counted=per_robot)"
-                if random != (self.init_random_frames)
-                else ""
-            )
+            per = f" x {num_robots} robots (td3.random_counted=per_robot)" if random != (
+                self.init_random_frames
+            ) else ""
             raise ValueError(
                 f"td3.init_random_frames ({self.init_random_frames}{per}) must be below "
                 f"collector.total_frames ({total_frames}): the policy would never act"
