@@ -6,15 +6,17 @@ and the analysis commands. A plugin that cannot be imported is one error line na
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import yaml
-from cli_helpers import error_line
+from cli_helpers import TINY_SWEEP_OVERRIDES, error_line
 from plugin_helpers import write_plugin
 
 from gcnt.cli import main as gcnt
@@ -71,44 +73,97 @@ def _gcnt(*argv: str, env: dict | None = None, cwd: Path | None = None) -> str:
     return done.stdout
 
 
+def _gcnt_fails(*argv: str, cwd: Path | None = None) -> str:
+    """``python -m gcnt.cli ARGV`` in a fresh process: it must exit 2 in one error line (the
+    line)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "gcnt.cli", *argv],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=cwd,
+    )
+    assert done.returncode == 2, done.stderr[-3000:]
+    lines = [line for line in done.stderr.splitlines() if line.startswith("gcnt ")]
+    assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr[-3000:]
+    return lines[0]
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
 @pytest.mark.slow
-def test_a_plugin_named_once_reaches_eval_resume_and_fine_tune_in_fresh_processes(plugin, tmp_path):
+def test_a_plugin_run_records_its_plugin_and_needs_it_named_wherever_the_file_moved(tmp_path):
+    plugin = write_plugin(tmp_path / "first")
+    sha = _sha256(plugin)
     recipe, run = plugin.parent / "recipe.yaml", tmp_path / "run"
     _gcnt("--plugin", str(plugin), "train", str(recipe), f"run_dir={run}")
-    # the run records the plugin (recipe key) and the file it came from (provenance)
+    # the run records the plugin's identity (name, hash of its source); provenance its file
     recorded = yaml.safe_load((run / "recipe.yaml").read_text())
-    assert recorded["plugins"] == [str(plugin)]
+    assert recorded["resolved"]["plugins"] == [{"name": "my_methods.py", "sha256": sha}]
     (session,) = json.loads((run / "provenance.json").read_text())["sessions"]
     assert [p["file"] for p in session["plugins"]] == [str(plugin)]
-    # a fresh process, told nothing, evaluates, resumes and fine-tunes the plugin's run
-    out = _gcnt("eval", str(run), "--robots", "hopper_4", "--episodes", "1", cwd=tmp_path)
+    # a fresh process that does not name it: one line naming it, its hash and --plugin
+    line = _gcnt_fails("eval", str(run), "--robots", "hopper_4", "--episodes", "1", cwd=tmp_path)
+    assert "my_methods.py" in line and sha[:16] in line and "--plugin" in line
+    # the file moves: the run plots without it, and evaluates, resumes and fine-tunes with
+    # --plugin NEWPATH
+    moved = tmp_path / "moved"
+    shutil.move(plugin.parent, moved)
+    new = moved / "my_methods.py"
+    out = _gcnt("curves", str(run), "--out", str(tmp_path / "fig"), cwd=tmp_path)
+    assert "plugnet" in out
+    out = _gcnt(
+        "--plugin", str(new), "eval", str(run), "--robots", "hopper_4", "--episodes", "1",
+        cwd=tmp_path,
+    )  # fmt: skip
     assert "hopper_4" in out
-    _gcnt("train", "--resume", str(run), "collector.total_frames=60", cwd=tmp_path)
+    _gcnt("--plugin", str(new), "train", "--resume", str(run), "collector.total_frames=60")
     assert RunDir(run).load_checkpoint()["env_steps"] == 60
     ft = tmp_path / "ft"
     _gcnt(
-        "train", str(recipe), "--init-from", str(run), f"run_dir={ft}",
-        "env.robots=[hopper_4]", "env.test_robots=[hopper_5]", cwd=tmp_path,
+        "--plugin", str(new), "train", str(moved / "recipe.yaml"), "--init-from", str(run),
+        f"run_dir={ft}", "env.robots=[hopper_4]", "env.test_robots=[hopper_5]", cwd=tmp_path,
     )  # fmt: skip
-    assert yaml.safe_load((ft / "recipe.yaml").read_text())["plugins"] == [str(plugin)]
-    assert RunDir(ft).load_recipe().resolved["init_from"]["run"] == str(run)
+    ft_recipe = yaml.safe_load((ft / "recipe.yaml").read_text())
+    assert ft_recipe["resolved"]["init_from"]["run"] == str(run)
+    assert ft_recipe["resolved"]["plugins"] == [{"name": "my_methods.py", "sha256": sha}]
+    # a changed plugin of the same name: a warning naming both hashes
+    new.write_text(new.read_text() + "\n# changed\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "gcnt.cli", "--plugin", str(new), "eval", str(run), "--robots",
+         "hopper_4", "--episodes", "1"],
+        capture_output=True, text=True, timeout=600, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert sha[:16] in done.stderr and _sha256(new)[:16] in done.stderr
 
 
 @pytest.mark.slow
-def test_a_sweep_runs_the_plugin_then_curves_and_zeroshot_import_it(plugin, tmp_path, capsys):
+def test_a_sweep_with_a_plugin_method_leaves_its_other_runs_free_of_it(tmp_path, capsys):
+    plugin = write_plugin(tmp_path / "first")
     sw = tmp_path / "sw"
-    argv = ["--plugin", str(plugin), "sweep", str(plugin.parent / "recipe.yaml")]
-    argv += ["--seeds", "0", "--jobs", "1", "--dir", str(sw), "--eval", "test"]
-    assert gcnt([*argv, "--episodes", "1"]) == 0  # the runs: `python -m gcnt.cli` children
+    argv = ["--plugin", str(plugin), "sweep", str(QUICKSTART), "--methods", "plugnet,gcnt"]
+    argv += ["--seeds", "0", "--jobs", "1", "--dir", str(sw), "--eval", "test", "--episodes", "1"]
+    try:  # the runs: `python -m gcnt.cli` children
+        assert gcnt([*argv, *TINY_SWEEP_OVERRIDES]) == 0
+    finally:
+        _forget("my_methods", plugin.parent)
     manifest = json.loads((sw / "manifest.json").read_text())
     assert {r["state"] for r in manifest["runs"]} == {"done"}
-    assert all(r["eval_state"] == {"test": "done"} for r in manifest["runs"])
-    assert all(f"plugins={json.dumps([str(plugin)])}" in r["overrides"] for r in manifest["runs"])
-    assert gcnt(["curves", str(sw), "--out", str(tmp_path / "fig")]) == 0
-    assert "plugnet" in capsys.readouterr().out
-    # a fresh process shows the plugin's display name: it imported what the runs recorded
+    assert not any("plugins=" in o for r in manifest["runs"] for o in r["overrides"])
+    runs = {r["method"]: sw / r["run_dir"] for r in manifest["runs"]}
+    shutil.move(plugin.parent, tmp_path / "moved")
+    # reading results needs no code: curves and zeroshot in a fresh process, no plugin named
+    assert "plugnet" in _gcnt("curves", str(sw), "--out", str(tmp_path / "fig"), cwd=tmp_path)
     out = _gcnt("zeroshot", str(sw), "--out", str(tmp_path / "fig"), cwd=tmp_path)
-    assert "PlugNet" in out and "hopper_4" in out
+    assert "plugnet" in out and "hopper_4" in out
+    _gcnt("sweep", str(sw), "--status", cwd=tmp_path)
+    # the GCNT run does not need the plugin; the plugin's run names it
+    out = _gcnt("eval", str(runs["gcnt"]), "--episodes", "1", cwd=tmp_path)
+    assert "hopper_4" in out
+    assert "my_methods.py" in _gcnt_fails("eval", str(runs["plugnet"]), cwd=tmp_path)
 
 
 @pytest.mark.slow
@@ -133,7 +188,7 @@ def test_a_recipe_names_plugins_relative_to_itself(plugin, tmp_path, monkeypatch
     other.mkdir()
     (other / "r.yaml").write_text(f"base: {plugin.parent / 'recipe.yaml'}\nplugins: [../x.py]\n")
     (tmp_path / "x.py").write_text("")
-    monkeypatch.chdir(plugin.parent)  # neither folder
+    monkeypatch.syspath_prepend(str(plugin.parent))  # a module plugin: from the Python path
     assert load_recipe(other / "r.yaml", ["plugins=[my_methods]"]).plugins == ["my_methods"]
     monkeypatch.chdir(tmp_path.parent)
     assert load_recipe(other / "r.yaml").plugins == [str(tmp_path / "x.py")]
@@ -160,10 +215,17 @@ def test_the_variable_and_entry_points_name_plugins(tmp_path, monkeypatch, capsy
     try:
         assert gcnt([*sweep, "--dir", str(tmp_path / "sw")]) == 0
         manifest = json.loads((tmp_path / "sw" / "manifest.json").read_text())
-        # the variable's plugin is the command's own: its runs record it; an installed
-        # package's entry point is imported by every gcnt process anyway
-        assert all('plugins=["env_plug"]' in r["overrides"] for r in manifest["runs"])
+        # the variable's plugin is the command's own: its runs are given it by --plugin (the
+        # manifest records none); an installed package's entry point is imported by every
+        # gcnt process anyway
+        assert not any("plugins=" in o for r in manifest["runs"] for o in r["overrides"])
         from gcnt import plugins
+        from gcnt.sweep import RunSpec, commands
+
+        plugins.start_session()  # a command that continues the sweep, GCNT_PLUGINS still set
+        (_, train), *_ = commands(RunSpec(**manifest["runs"][0]))
+        plugins.end_session()
+        assert train[3:5] == ["--plugin", "env_plug"] and train[-1] == "plugins=[]"
 
         vias = {p["via"]: p["file"] for p in plugins.loaded()}
         assert vias["entry point mine"] == str(tmp_path / "ep_plug.py")
@@ -193,13 +255,78 @@ def test_a_plugin_that_cannot_be_imported_is_one_line_naming_it(tmp_path, monkey
     assert "(named by GCNT_PLUGINS)" in error_line(capsys, ["eval", str(tmp_path)])
     monkeypatch.delenv("GCNT_PLUGINS")
     assert gcnt(["train", recipe, "--plugin"]) == 2
-    # a recipe naming one, and a run that recorded one that is gone
+    # a recipe naming one
     bad = tmp_path / "bad.yaml"
     bad.write_text(f"base: {QUICKSTART}\nplugins: [no_such_plugin_mod]\n")
     line = error_line(capsys, ["train", str(bad)])
     assert f"{bad}: plugin no_such_plugin_mod (named by the recipe key plugins)" in line
-    run = tmp_path / "runs" / "old"
-    run.mkdir(parents=True)
-    (run / "recipe.yaml").write_text("task: t\nplugins: [no_such_plugin_mod]\n")
-    line = error_line(capsys, ["curves", str(tmp_path / "runs")])
-    assert f"plugin no_such_plugin_mod (named by the run {run})" in line
+
+
+@pytest.mark.parametrize(
+    "body, said",
+    [
+        ("import sys\nsys.exit(0)\n", "sys.exit(0)"),
+        ("import sys\nsys.exit(3)\n", "sys.exit(3)"),
+        ("raise KeyboardInterrupt\n", "KeyboardInterrupt"),
+        ("raise OSError('disk on fire')\n", "OSError: disk on fire"),
+        (
+            "from gcnt.nn import register_network\nfrom gcnt.nn.config import GCNTConfig\n"
+            "from gcnt.nn.gcnt import gcnt_backbone\n"
+            "register_network('gcnt', GCNTConfig, gcnt_backbone, replace=True)\n",
+            "built-in method and cannot be replaced",
+        ),
+    ],
+)
+def test_a_plugin_that_exits_raises_or_replaces_a_built_in_is_one_line_exit_2(
+    tmp_path, capsys, body, said
+):
+    from gcnt.nn.registry import NETWORKS
+
+    builtin = NETWORKS["gcnt"]
+    path = tmp_path / "leaving_plugin.py"
+    path.write_text(body)
+    try:
+        line = error_line(capsys, ["--plugin", str(path), "robots"])
+    finally:
+        sys.modules.pop("leaving_plugin", None)
+    assert f"plugin {path} (named by --plugin)" in line and said in line
+    assert NETWORKS["gcnt"] is builtin
+    from gcnt import plugins
+
+    assert all("leaving_plugin" not in k for k in plugins._loaded)
+
+
+def test_naming_a_plugin_leaves_the_python_path_as_it_is(tmp_path, monkeypatch):
+    """A plugin file is imported from its path: neither its folder nor the current folder joins
+    sys.path, so their stray modules (a ``pandas.py``) are never imported in place of the real
+    ones, here or in a fresh process."""
+    from gcnt import plugins
+
+    folder, cwd = tmp_path / "plug", tmp_path / "cwd"
+    for where in (folder, cwd):
+        where.mkdir()
+        (where / "pandas.py").write_text(f"open({str(where / 'RAN')!r}, 'w').close()\n")
+    (folder / "quiet_plugin.py").write_text("VALUE = 1\n")
+    monkeypatch.chdir(cwd)
+    before = list(sys.path)
+    try:
+        plugins.load([str(folder / "quiet_plugin.py")], via="--plugin")
+        assert sys.modules["quiet_plugin"].VALUE == 1
+    finally:
+        sys.modules.pop("quiet_plugin", None)
+        plugins._loaded.pop(str(folder / "quiet_plugin.py"), None)
+    assert sys.path == before
+    probe = (
+        "import importlib.util, sys\n"
+        "from gcnt.cli import main\n"
+        f"rc = main(['--plugin', {str(folder / 'quiet_plugin.py')!r}, 'robots'])\n"
+        "spec = importlib.util.find_spec('pandas')\n"
+        "print(rc, spec.origin if spec else None)\n"
+        "import pandas\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-P", "-c", probe], capture_output=True, text=True, timeout=600, cwd=cwd
+    )
+    rc, origin = done.stdout.split()[-2:]
+    assert rc == "0" and str(tmp_path) not in origin
+    assert not (folder / "RAN").exists() and not (cwd / "RAN").exists()

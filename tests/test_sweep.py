@@ -46,7 +46,8 @@ def test_expand_gives_every_run_an_explicit_dir_and_the_sweep_group(tmp_path: Pa
     # a method-specific override reaches that method only, after the shared ones
     assert "network.kwargs={d_model: 9, layers: 1, ff: 16, heads: 3}" in s.overrides
     assert not any("d_model: 9" in o for o in specs[0].overrides)
-    assert S.commands(s)[0][1][-len(s.overrides) :] == s.overrides
+    # the recipe file's own plugins are not the run's to import: the sweep command names them
+    assert S.commands(s)[0][1][-len(s.overrides) - 1 :] == [*s.overrides, "plugins=[]"]
     with pytest.raises(S.SweepError, match="nope"):
         S.expand([QUICKSTART], tmp_path, overrides=["nope:seed=1"], methods=["gcnt"])
     with pytest.raises(S.SweepError, match="missing.yaml"):
@@ -148,7 +149,7 @@ def _spec(tmp_path: Path, **kw) -> S.RunSpec:
 def test_commands_continue_a_run_from_any_point(tmp_path: Path) -> None:
     spec = _spec(tmp_path)
     never = S.commands(spec)[0][1]
-    assert "--resume" not in never and never[-1] == f"run_dir={spec.run_dir}"
+    assert "--resume" not in never and never[-2:] == [f"run_dir={spec.run_dir}", "plugins=[]"]
     run = Path(spec.run_dir)
     (run / "checkpoints").mkdir(parents=True)
     shutil.copy(QUICKSTART, run / "recipe.yaml")  # stopped before its first checkpoint

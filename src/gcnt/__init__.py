@@ -24,3 +24,18 @@ if not any(k in os.environ for k in _OPENMP_KEYS):
     os.environ["GOMP_SPINCOUNT"] = "10000"
 
 __version__ = "0.1.0"
+
+#: the Python API (:mod:`gcnt.api`), imported on first use: ``import gcnt`` stays light
+_API = ("load_run", "load_policy", "make_env", "LoadedRun")
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from gcnt import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'gcnt' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])

@@ -9,6 +9,8 @@ a comment; a YAML key that is not declared is an error that names it and suggest
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import dataclasses
 import importlib
 import logging
@@ -20,7 +22,7 @@ from typing import Any, Literal
 
 import yaml
 
-from gcnt.files import parse_yaml, read_yaml, write_text
+from gcnt.files import parse_yaml, write_text
 from gcnt.suggest import did_you_mean
 
 log = logging.getLogger(__name__)
@@ -196,6 +198,12 @@ def register_algorithm_section(name: str, section: type, *, replace: bool = Fals
     when ``algo: name``; the sections of other algorithms are kept but not validated)."""
     if not dataclasses.is_dataclass(section):
         raise TypeError(f"the recipe section of {name!r} must be a dataclass, got {section!r}")
+    if name in _BUILTIN_SECTIONS and name not in ALGORITHM_SECTIONS:
+        algorithm_section(name)
+    if name in _BUILTIN_SECTIONS and ALGORITHM_SECTIONS[name] is not section:
+        raise ValueError(
+            f"algorithm {name!r} is built into gcnt; its recipe section cannot be replaced"
+        )
     if name in ALGORITHM_SECTIONS and not replace and ALGORITHM_SECTIONS[name] is not section:
         raise ValueError(f"algorithm {name!r} already has a recipe section")
     ALGORITHM_SECTIONS[name] = section
@@ -209,7 +217,7 @@ def algorithm_section(name: str) -> type:
     """The recipe section dataclass of algorithm ``name``."""
     if name not in ALGORITHM_SECTIONS and name in _BUILTIN_SECTIONS:
         module, attr = _BUILTIN_SECTIONS[name].split(":")
-        register_algorithm_section(name, getattr(importlib.import_module(module), attr))
+        ALGORITHM_SECTIONS[name] = getattr(importlib.import_module(module), attr)
     if name not in ALGORITHM_SECTIONS:
         raise RecipeError(
             f"algo: unknown algorithm {name!r}{did_you_mean(name, algorithm_names())} "
@@ -233,9 +241,10 @@ class Recipe:
     #: cpu | cuda | cuda:N
     device: str = "cpu"
     #: your own modules (``my_pkg.methods``) or .py files (relative to the recipe file),
-    #: imported before the recipe is read: the methods, benchmarks and algorithms they register
-    #: can be named here (:mod:`gcnt.plugins`). A run records every plugin it was trained with
-    #: (``--plugin``, GCNT_PLUGINS, its ``init_from`` run's)
+    #: imported before a recipe file given to ``gcnt train`` or ``gcnt sweep`` is read: the
+    #: methods, benchmarks and algorithms they register can be named here (:mod:`gcnt.plugins`).
+    #: A run records its plugins by identity (``resolved.plugins``) and never imports them; its
+    #: recipe read back lists the plugins of the command reading it
     plugins: list[str] = field(default_factory=list)
     #: run directory (default: runs/<task>/<algo>-<network>/seed<seed>)
     run_dir: str | None = None
@@ -453,7 +462,6 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     names = [f.name for f in dataclasses.fields(cls) if f.name not in _INTERNAL]
     is_recipe = cls is Recipe
     if is_recipe:
-        data = _with_plugins(data)  # imported first: they may register the algorithm
         algo = data.get("algo", "td3")
         if not isinstance(algo, str):
             raise RecipeError(f"algo: expected an algorithm name, got {algo!r}")
@@ -493,38 +501,22 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     return obj
 
 
-def _with_plugins(data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` with its plugins imported: the recipe's own, then those its ``init_from`` run
-    recorded (a fine-tune builds the same method); ``plugins`` lists both."""
+def import_recipe_plugins(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """Import the plugins a recipe file given to this command names (its ``plugins:`` key: the
+    methods, benchmarks and algorithms they register can then be named), as this command's own
+    (:func:`gcnt.plugins.add_to_session`); ``data`` with them normalized. Only a recipe the
+    user gives is read for plugins: a run's or a sweep's recorded recipe never is."""
     from gcnt import plugins
 
     own = _check_type(data.get("plugins", []), list[str], "plugins")
-    source = data.get("init_from")
-    inherited = _recorded_plugins(source) if isinstance(source, str) and source else []
-    if not own and not inherited:
+    if not own:
         return data
     try:
         names = plugins.load(own, via="the recipe key plugins")
-        names += plugins.load(inherited, via=f"the init_from run {source}")
     except plugins.PluginError as e:
-        raise RecipeError(str(e)) from None
-    return {**data, "plugins": list(dict.fromkeys(names))}
-
-
-def _recorded_plugins(run_dir: str) -> list[str]:
-    """The plugins a run directory's recipe records ([] where it cannot be read: the run's own
-    checks name a missing or broken source)."""
-    try:
-        data = (
-            read_yaml(
-                Path(run_dir) / "recipe.yaml", MAX_RECIPE_BYTES, "a recipe is YAML", RecipeError
-            )
-            or {}
-        )
-    except RecipeError:
-        return []
-    found = data.get("plugins") if isinstance(data, dict) else None
-    return [p for p in found if isinstance(p, str)] if isinstance(found, list) else []
+        raise RecipeError(f"{source}: {e}") from None
+    plugins.add_to_session(names)
+    return {**data, "plugins": names}
 
 
 #: Recipe fields that are not written as keys of their own
@@ -759,11 +751,24 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     ``quickstart``, ``smpenv/walker``). A recipe may start from another with
     ``base: relative/path.yaml``; its keys override the base's, section by section.
     """
-    return recipe_from_dict(read_recipe_file(path), overrides, source=str(find_recipe(path)))
+    data = read_recipe_file(path)
+    source = str(find_recipe(path))
+    effective = copy.deepcopy(data)
+    with contextlib.suppress(RecipeError):  # a bad override: recipe_from_dict says what
+        for o in overrides or []:
+            _apply_override(effective, o)
+    if isinstance(effective, dict) and effective.get("plugins"):
+        # imported first: they may register the algorithm, the method, the benchmark
+        import_recipe_plugins(effective, source)
+    return recipe_from_dict(data, overrides, source=source)
 
 
 def load_run_recipe(
-    path: str | Path, overrides: list[str] | None = None, *, anywhere: bool = False
+    path: str | Path,
+    overrides: list[str] | None = None,
+    *,
+    anywhere: bool = False,
+    stored_robots: bool = True,
 ) -> Recipe:
     """The recipe a run recorded (its ``recipe.yaml``), to go on with here, with ``overrides``.
 
@@ -772,8 +777,30 @@ def load_run_recipe(
     with ``device=cpu``), unless an override sets them (then refused as in any recipe). With
     ``anywhere`` (a run read rather than trained on: evaluation, analysis, a fine-tune's source),
     a run recorded on a CUDA device that this machine lacks is read on the CPU, in one info line;
-    a resumed run instead names the ``device=cpu`` override that moves it."""
-    data = _as_recorded(read_recipe_file(path))
+    a resumed run instead names the ``device=cpu`` override that moves it.
+
+    Nothing the run names is imported: its recorded plugins are checked against this command's
+    (:func:`gcnt.run_record.check_plugins`: one that the run needs and the command did not name
+    is an error naming it), and the recipe's ``plugins`` are this command's own. Its robots are
+    the ones it recorded, read from its own copies where not registered here
+    (:func:`gcnt.run_record.use_stored_robots`; ``stored_robots=False``: not yet, so that a
+    command can check what it was asked before the robot catalogues are loaded)."""
+    from gcnt import plugins
+    from gcnt.run_record import check_plugins, use_stored_robots
+
+    recorded = read_recipe_file(path)
+    check_plugins(Path(path).parent, recorded)
+    recipe = _load_run_recipe(recorded, path, overrides, anywhere)
+    recipe.plugins = plugins.session()
+    if stored_robots:
+        use_stored_robots(recipe, Path(path).parent, recorded)
+    return recipe
+
+
+def _load_run_recipe(
+    recorded: dict[str, Any], path: str | Path, overrides: list[str] | None, anywhere: bool
+) -> Recipe:
+    data = _as_recorded(recorded)
     overrides = list(overrides or [])
     given = {o.split("=", 1)[0].strip() for o in overrides if "=" in o}
     effective = yaml.safe_load(yaml.safe_dump(data or {}))

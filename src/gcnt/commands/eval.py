@@ -127,7 +127,7 @@ def _run_recipe(path: Path):
 
     if not (path / RECIPE_FILE).exists():
         raise FileNotFoundError(f"{path}: no {RECIPE_FILE}; is this a gcnt run directory?")
-    return load_run_recipe(path / RECIPE_FILE, anywhere=True)
+    return load_run_recipe(path / RECIPE_FILE, anywhere=True, stored_robots=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -142,6 +142,16 @@ def run(args: argparse.Namespace) -> int:
     episodes = args.episodes if args.episodes is not None else default_episodes(deterministic)
     if episodes < 1:
         raise RecipeError(f"--episodes must be >= 1, got {episodes}")
+    if not any(
+        recipe.env.test_robots if s == "test" else recipe.env.robots if s == "train" else [s]
+        for s in args.robots
+    ):
+        raise RecipeError(
+            f"{path}: no robots to evaluate (the recipe has no test robots; pass --robots ...)"
+        )
+    from gcnt.run_record import use_stored_robots
+
+    use_stored_robots(recipe, path)  # the run's own robots where not registered here
     if args.json:  # a folder or a socket there: refused before the evaluation
         from gcnt.files import check_output
 
@@ -154,10 +164,6 @@ def run(args: argparse.Namespace) -> int:
             specs += recipe.env.robots
         else:
             specs.append(spec)
-    if not specs:
-        raise RecipeError(
-            f"{path}: no robots to evaluate (the recipe has no test robots; pass --robots ...)"
-        )
     from gcnt.morphology.catalogues import resolve_robots
     from gcnt.recipes import run_robot_specs
 

@@ -80,7 +80,13 @@ _BUILTIN: dict[str, str] = {
 
 
 def register_benchmark(benchmark: Benchmark, *, replace: bool = False) -> Benchmark:
-    """Make ``benchmark`` available under its name (``replace`` to redefine one)."""
+    """Make ``benchmark`` available under its name (``replace`` to redefine one of yours; a
+    built-in benchmark is never replaced)."""
+    if benchmark.name in _BUILTIN and get_benchmark(benchmark.name) is not benchmark:
+        raise ValueError(
+            f"benchmark {benchmark.name!r} is built into gcnt and cannot be replaced; register "
+            "yours under a name of its own"
+        )
     if benchmark.name in _REGISTRY and not replace:
         raise ValueError(f"benchmark {benchmark.name!r} is already registered")
     _REGISTRY[benchmark.name] = benchmark

@@ -125,7 +125,13 @@ def _clear_caches() -> None:
 
 
 def register_catalogue(catalogue: Catalogue, *, replace: bool = False) -> Catalogue:
-    """Make ``catalogue`` resolvable (``replace`` to redefine one of the same name)."""
+    """Make ``catalogue`` resolvable (``replace`` to redefine one of yours; a built-in one is
+    never replaced)."""
+    if catalogue.name in _BUILTIN:
+        raise ValueError(
+            f"catalogue {catalogue.name!r} is built into gcnt and cannot be replaced; register "
+            "yours under a name of its own"
+        )
     if not replace and (catalogue.name in _REGISTRY or catalogue.name in _BUILTIN):
         raise ValueError(f"catalogue {catalogue.name!r} is already registered")
     _REGISTRY[catalogue.name] = catalogue
@@ -338,6 +344,24 @@ def robot_catalogue(name: str) -> str | None:
 @functools.lru_cache(maxsize=2048)
 def _load(catalogue: str, name: str) -> Robot:
     return get_catalogue(catalogue).load(name)
+
+
+#: robot spec -> its robots as (name, stored file, family, catalogue): a run's own copies of
+#: robots not registered here (:func:`gcnt.run_record.use_stored_robots`), resolved first
+_PINNED: dict[str, tuple[tuple[str, Path, str | None, str | None], ...]] = {}
+
+
+def pin_robots(spec: str, robots: Sequence[tuple[str, Path, str | None, str | None]]) -> None:
+    """Resolve ``spec`` to ``robots`` from now on in this process: each a (name, MJCF file,
+    family, catalogue), read from that file (a run's stored copy) as that family of that
+    catalogue, under that name."""
+    _PINNED[spec] = tuple((n, Path(p), f, c) for n, p, f, c in robots)
+
+
+@functools.lru_cache(maxsize=2048)
+def _load_pinned(name: str, path: Path, family: str | None, catalogue: str | None) -> Robot:
+    robot = load_robot(path, catalogue=catalogue, family=family)
+    return dataclasses.replace(robot, name=name)
 
 
 def load_named(name: str) -> Robot:
@@ -618,7 +642,9 @@ def _resolve_each(specs: Sequence[str], *, repeats: bool) -> tuple[list[Robot], 
     for spec in specs:
         path = Path(spec)
         is_file = False
-        if robot_catalogue(spec) is not None:
+        if spec in _PINNED:
+            found = [_load_pinned(*stored) for stored in _PINNED[spec]]
+        elif robot_catalogue(spec) is not None:
             found = [load_named(spec)]
         elif _is_pattern(spec) and not path.exists():
             found = [load_named(n) for n in _matching_names(spec)]

@@ -94,6 +94,11 @@ def register_network(
         raise TypeError(f"network {name!r}: config must be a NetConfig subclass, got {config!r}")
     if not callable(build):
         raise TypeError(f"network {name!r}: build must be callable, got {build!r}")
+    if name in globals().get("BUILTIN_NETWORKS", ()):
+        raise ValueError(
+            f"network {name!r} is a built-in method and cannot be replaced; register yours under "
+            "a name of its own"
+        )
     if name in NETWORKS and not replace:
         raise ValueError(f"network {name!r} is already registered (pass replace=True)")
     fixed = dict(fixed or {})
@@ -104,7 +109,9 @@ def register_network(
 
 
 def unregister_network(name: str) -> None:
-    """Remove method ``name`` (for tests that register a toy method)."""
+    """Remove method ``name`` (for tests that register a toy method; not a built-in one)."""
+    if name in BUILTIN_NETWORKS:
+        raise ValueError(f"network {name!r} is a built-in method and cannot be removed")
     if name not in NETWORKS:
         raise unknown_name_error("network", name, list(NETWORKS))
     del NETWORKS[name]
@@ -149,6 +156,9 @@ register_network(
 register_network(
     "mlp", MLPConfig, mlp_backbone, description="SR (one MLP per robot)", fixed_limbs=True
 )
+#: the methods gcnt defines: never replaced (a plugin's method has a name of its own, so that its
+#: runs are never shown or averaged as a built-in method's)
+BUILTIN_NETWORKS = frozenset(NETWORKS)
 
 #: the methods gcnt itself registers (the others come from plugins)
 BUILT_IN = frozenset(NETWORKS)

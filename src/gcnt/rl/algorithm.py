@@ -158,6 +158,11 @@ _BUILTIN: dict[str, str] = {"td3": "gcnt.rl.td3.learner:TD3", "ppo": "gcnt.rl.pp
 def register_algorithm(name: str, cls: type[Algorithm], *, replace: bool = False) -> None:
     """Make algorithm ``cls`` trainable with ``algo: name`` (its recipe section must be
     registered with :func:`gcnt.recipes.register_algorithm_section`)."""
+    if name in _BUILTIN and get_algorithm(name) is not cls:
+        raise ValueError(
+            f"algorithm {name!r} is built into gcnt and cannot be replaced; register yours under "
+            "a name of its own"
+        )
     if name in _ALGORITHMS and not replace and _ALGORITHMS[name] is not cls:
         raise ValueError(f"algorithm {name!r} is already registered")
     _ALGORITHMS[name] = cls

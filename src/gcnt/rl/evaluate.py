@@ -29,7 +29,7 @@ from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe, run_robot_specs
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.device import on_device
-from gcnt.rl.factories import base_env, make_env
+from gcnt.rl.factories import base_env, make_env, run_robots
 from gcnt.rl.run_dir import CHECKPOINT_MISFITS, RunDirError, strict_json
 
 log = logging.getLogger(__name__)
@@ -47,6 +47,15 @@ def eval_robots(specs: Sequence[str], recipe: Recipe | None = None) -> list[Robo
     """The robots of ``specs``, each once (a robot named twice is evaluated once; robot files
     of one name are distinct robots, see :func:`~gcnt.morphology.catalogues.resolve_robots`),
     named as in the run of ``recipe`` (:func:`~gcnt.recipes.run_robot_specs`)."""
+    if recipe is not None:  # the run's own lists: as resolved once for the recipe
+        train, tests = run_robots(recipe)
+        lists = {
+            tuple(recipe.env.robots): train,
+            tuple(recipe.env.test_robots): tests,
+            (*recipe.env.robots, *recipe.env.test_robots): [*train, *tests],
+        }
+        if tuple(specs) in lists and specs:
+            return list(lists[tuple(specs)])
     names_from = run_robot_specs(recipe) if recipe is not None else ()
     return resolve_robots(specs, repeats=True, names_from=names_from)
 
@@ -57,7 +66,7 @@ def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
     from gcnt.envs.robot_table import RobotTooLargeError
     from gcnt.nn.registry import NETWORKS
 
-    train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
+    train_k = recipe.env.max_limbs or max(r.num_limbs for r in run_robots(recipe)[0])
     big = max(robots, key=lambda r: r.num_limbs)
     entry = NETWORKS.get(recipe.network.name)
     if big.num_limbs > train_k and entry is not None and entry.fixed_limbs:

@@ -32,11 +32,36 @@ def benchmark_of(recipe: Recipe) -> Benchmark:
     return bench
 
 
+#: id(recipe) -> (the recipe, its robot specs, (training robots, test robots))
+_RESOLVED: dict[int, tuple[Recipe, tuple, tuple[list[Robot], list[Robot]]]] = {}
+
+
+def run_robots(recipe: Recipe) -> tuple[list[Robot], list[Robot]]:
+    """The recipe's training and test robots, resolved once per recipe object and robot lists
+    (named as in the run: :func:`~gcnt.recipes.run_robot_specs`): every check, the env, the
+    evaluations and the run's record of a command start from these."""
+    key = (tuple(recipe.env.robots), tuple(recipe.env.test_robots), tuple(recipe.eval.robots))
+    held = _RESOLVED.get(id(recipe))
+    if held is not None and held[0] is recipe and held[1] == key:
+        return held[2]
+    names_from = run_robot_specs(recipe)
+    train = resolve_robots(recipe.env.robots, names_from=names_from) if recipe.env.robots else []
+    tests = (
+        resolve_robots(recipe.env.test_robots, names_from=names_from)
+        if recipe.env.test_robots
+        else []
+    )
+    if len(_RESOLVED) > 64:  # a process that builds many recipes (a sweep's checks)
+        _RESOLVED.clear()
+    _RESOLVED[id(recipe)] = (recipe, key, (train, tests))
+    return train, tests
+
+
 def train_robots(recipe: Recipe) -> list[Robot]:
     """The recipe's training robots (a repeated robot is an error: use ``env.copies``)."""
     if not recipe.env.robots:
         raise RecipeError("env.robots is empty: name at least one robot to train on")
-    robots = resolve_robots(recipe.env.robots, names_from=run_robot_specs(recipe))
+    robots = run_robots(recipe)[0]
     check_benchmark(recipe, robots, "env.robots")
     check_apart(recipe, robots)
     return robots
@@ -48,7 +73,7 @@ def check_apart(recipe: Recipe, robots: Sequence[Robot]) -> None:
     the test list without them."""
     if not recipe.env.test_robots:
         return
-    tests = resolve_robots(recipe.env.test_robots, names_from=run_robot_specs(recipe))
+    tests = run_robots(recipe)[1]
     trained = {robot_identity(r) for r in robots}
     tested = {robot_identity(r) for r in tests}
     both = [r for r in robots if robot_identity(r) in tested]

@@ -13,7 +13,7 @@ The two runs must agree on what the weights mean: the algorithm, the benchmark a
 (method, size preset and sizes); every tensor's shape is then checked, which covers the per-limb
 token width and a height map present on one side only. A disagreement is one RecipeError naming
 both sides. The new run's ``recipe.yaml`` records where it started, under ``resolved.init_from``:
-the source run directory, its task and fingerprint (:attr:`gcnt.analysis.runs.Run.fingerprint`:
+the source run directory, its task and fingerprint (:attr:`gcnt.run_data.Run.fingerprint`:
 fine-tunes of the seeds of one experiment are seeds of one fine-tune), the env steps of its
 checkpoint and the checkpoint file's SHA-256.
 
@@ -71,7 +71,7 @@ def origin(recipe: Recipe, algo: Algorithm, *, resume: bool = False) -> dict[str
 def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
     """Load the trained networks of the run ``recipe.init_from`` into ``algo`` (built for
     ``recipe``); returns the record of where it started."""
-    from gcnt.analysis.runs import Run
+    from gcnt.run_data import Run
 
     where = f"init_from {recipe.init_from}"
     source = _source(recipe)

@@ -21,7 +21,7 @@ import signal
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
@@ -42,7 +42,7 @@ from gcnt.rl import init_from, stop
 from gcnt.rl.accelerate import collector_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
-from gcnt.rl.factories import benchmark_of, train_robots
+from gcnt.rl.factories import benchmark_of, run_robots, train_robots
 from gcnt.rl.run_dir import (
     CHECKPOINT_MISFITS,
     CheckpointError,
@@ -53,6 +53,7 @@ from gcnt.rl.run_dir import (
     set_rng_state,
 )
 from gcnt.rl.run_logger import RunLogger
+from gcnt.run_record import store_robots
 
 log = logging.getLogger(__name__)
 
@@ -299,8 +300,17 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
                 f"network {recipe.network.name!r} on {benchmark_of(recipe).name} robots: {e}"
             ) from None
         raise
-    recipe.resolved = {**algo.resolved(), **start}
+    recipe.resolved = {**algo.resolved(), **start, **run_record(robots, run_robots(recipe)[1])}
     return Prepared(robots, env, algo)
+
+
+def run_record(robots: Sequence[Robot], tests: Sequence[Robot]) -> dict[str, Any]:
+    """What the run records of its robots and plugins (:mod:`gcnt.run_record`), in
+    ``resolved``."""
+    from gcnt import plugins
+    from gcnt.run_record import PLUGINS_KEY, ROBOTS_KEY, robot_record
+
+    return {ROBOTS_KEY: robot_record(robots, tests), PLUGINS_KEY: plugins.identities()}
 
 
 def train(
@@ -355,6 +365,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
     env_steps = resume_checkpoint(run, algo) if resume else 0
     start, total = env_steps, recipe.collector.total_frames
     if not resume or env_steps < total:  # a finished run's recipe is left as it was
+        store_robots(run.path, [*robots, *run_robots(recipe)[1]])  # before the record names them
         run.save_recipe(recipe)  # after the checkpoint was found to fit it
     if resume and env_steps < total:  # the code now running continues the run: recorded
         run.record_session()

@@ -98,11 +98,17 @@ def expand(
     Each combination is loaded and checked now as its run would check it before starting
     (:func:`gcnt.rl.loop.check_recipe`: the method, benchmark, robots, sizes...), and so is each
     robot spec of ``evals``, so that a mistake fails before anything runs (a :class:`SweepError`
-    naming it). The plugins of this command (``--plugin``, GCNT_PLUGINS) become every run's
-    ``plugins=[...]`` override: its process, here or on a cluster, imports them.
+    naming it). The plugins of a recipe given here (its ``plugins:`` key) are imported and join
+    this command's (``--plugin``, GCNT_PLUGINS), which the runs' processes, here or on a
+    cluster, are given by ``--plugin`` (:func:`gcnt.sweep.spec.gcnt_command`); the manifest
+    records none, so a sweep continued elsewhere imports only what its command names.
     """
-    from gcnt import plugins
-    from gcnt.recipes import RecipeError, read_recipe_file, recipe_from_dict
+    from gcnt.recipes import (
+        RecipeError,
+        import_recipe_plugins,
+        read_recipe_file,
+        recipe_from_dict,
+    )
 
     sweep_dir = Path(sweep_dir).resolve()
     group = group or sweep_dir.name
@@ -125,18 +131,17 @@ def expand(
         source = str(recipe_path)
         try:
             data = read_recipe_file(recipe_path)  # read once: a per-robot sweep loads it often
+            data = import_recipe_plugins(data, source)
             base = recipe_from_dict(data, [*_plain(overrides), *robots[0][1]], source)
         except RecipeError as e:
             raise SweepError(str(e)) from None
         ms = list(methods or [base.network.name])
         per_method = _split_method_overrides(overrides, ms)
-        imported = plugins.with_session(base.plugins) if plugins.session() else []
-        with_plugins = [f"plugins={json.dumps(imported)}"] if imported else []
         for m in ms:
             for robot, robot_ovr in robots:
                 for s in seeds if seeds is not None else [base.seed]:
                     given = [
-                        *per_method[m], *robot_ovr, *with_plugins, f"network.name={m}", f"seed={s}"
+                        *per_method[m], *robot_ovr, f"network.name={m}", f"seed={s}"
                     ]  # fmt: skip
                     try:
                         r = recipe_from_dict(data, given, source)

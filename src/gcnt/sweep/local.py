@@ -14,7 +14,7 @@ from typing import Any
 
 from gcnt.files import NotRegularFileError, check_replaceable, open_append
 from gcnt.sweep.manifest import Manifest
-from gcnt.sweep.spec import RunSpec, commands, gcnt_command
+from gcnt.sweep.spec import NO_RECIPE_PLUGINS, RunSpec, commands, gcnt_command
 from gcnt.sweep.status import ACTIVE, SweepError, now
 
 log = logging.getLogger(__name__)
@@ -154,7 +154,16 @@ def stacked_command(group: Sequence[RunSpec]) -> list[str]:
             raise ValueError(f"{spec.id}: not a seed directory of {parent}")
     rest = [o for o in first.overrides if not o.startswith(_PER_SEED)]
     seeds = ",".join(str(s.seed) for s in group)
-    return [*gcnt_command(), "train", first.recipe, *rest, f"run_dir={parent}", "--seeds", seeds]
+    return [
+        *gcnt_command(),
+        "train",
+        first.recipe,
+        *rest,
+        NO_RECIPE_PLUGINS,
+        f"run_dir={parent}",
+        "--seeds",
+        seeds,
+    ]
 
 
 def run_local(

@@ -12,7 +12,6 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from gcnt.analysis.runs import RECIPE_FILE, Run
 from gcnt.files import (
     KiB,
     MiB,
@@ -22,6 +21,7 @@ from gcnt.files import (
     read_text,
     write_text,
 )
+from gcnt.run_data import RECIPE_FILE, Run
 from gcnt.sweep.spec import RunSpec
 from gcnt.sweep.status import SweepError, now, read_record, slurm_states
 

@@ -25,6 +25,12 @@ from gcnt.sweep.status import ACTIVE, now, read_record, record_path, write_recor
 MAX_TIMEOUTS = 1000
 
 
+def _session_plugins() -> list[str]:
+    from gcnt import plugins
+
+    return plugins.session()
+
+
 class SweepTask:
     """One sweep run as a submitit job (Slurm array task): train (``gcnt train``, resumed where
     the run directory has begun), then evaluate; returns the run's record for the manifest.
@@ -36,13 +42,15 @@ class SweepTask:
     the job is not requeued and the run's record says ``stopped``.
     """
 
-    def __init__(self, grace_s: float = 60.0) -> None:
+    def __init__(self, grace_s: float = 60.0, plugins: list[str] | None = None) -> None:
         #: how long :meth:`checkpoint` waits for the training process to write its checkpoint
         self.grace_s = grace_s
+        #: the plugins of the command that submitted the sweep, which its runs import
+        self.plugins = _session_plugins() if plugins is None else list(plugins)
         self._proc: subprocess.Popen | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"grace_s": self.grace_s}
+        return {"grace_s": self.grace_s, "plugins": self.plugins}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(**state)
@@ -60,7 +68,7 @@ class SweepTask:
         spec.state = spec.files_state()
         attempt = int(previous.get("attempt", 0)) + 1
         state = "done"
-        for what, argv in commands(spec):
+        for what, argv in commands(spec, self.plugins):
             write_record(sweep, spec, "running", attempt=attempt, step=what)
             t0 = time.monotonic()
             rc = self._run(argv, env, logf)
@@ -126,7 +134,7 @@ class SweepTask:
             record = read_record(sweep, spec) or {}
             spec.started, spec.job_id = record.get("started"), _job_id()
             write_record(sweep, spec, "requeued", attempt=record.get("attempt", 1))
-        return DelayedSubmission(SweepTask(self.grace_s), *args, **kwargs)
+        return DelayedSubmission(SweepTask(self.grace_s, self.plugins), *args, **kwargs)
 
 
 def _job_id() -> str | None:

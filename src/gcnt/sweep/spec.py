@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gcnt.analysis.runs import CHECKPOINT, RECIPE_FILE, Run
+from gcnt.run_data import CHECKPOINT, RECIPE_FILE, Run
 from gcnt.sweep.status import ACTIVE, SLURM_FAILED, SLURM_REQUEUED, SLURM_RUNNING, SLURM_WAITING
 
 
@@ -117,31 +117,54 @@ class RunSpec:
         return self.state == "done" and not self.pending_evals()
 
 
-def gcnt_command() -> list[str]:
-    """The ``gcnt`` command of this interpreter (works on a cluster node with the same venv)."""
-    return [sys.executable, "-m", "gcnt.cli"]
+def gcnt_command(named: list[str] | None = None) -> list[str]:
+    """The ``gcnt`` command of this interpreter (works on a cluster node with the same venv),
+    with this command's plugins (``--plugin``, GCNT_PLUGINS, a given recipe's): a sweep's runs
+    import what the command that runs them names, never what a manifest or recipe records
+    (``named``: those plugins, where the command runs elsewhere: a Slurm job)."""
+    from gcnt import plugins
+
+    named = plugins.session() if named is None else named
+    return [sys.executable, "-m", "gcnt.cli", *(w for p in named for w in ("--plugin", p))]
 
 
-def commands(spec: RunSpec) -> list[tuple[str, list[str]]]:
-    """What is left to do for ``spec``: ("train", argv) then ("eval:SPEC", argv) per evaluation."""
+#: the last override of a sweep's ``gcnt train RECIPE``: the recipe file's own ``plugins:`` are
+#: not imported by the run (the sweep's command names them: :func:`gcnt_command`)
+NO_RECIPE_PLUGINS = "plugins=[]"
+
+
+def commands(spec: RunSpec, plugins: list[str] | None = None) -> list[tuple[str, list[str]]]:
+    """What is left to do for ``spec``: ("train", argv) then ("eval:SPEC", argv) per evaluation
+    (``plugins``: what the commands name, default this command's: :func:`gcnt_command`)."""
     out: list[tuple[str, list[str]]] = []
     run_dir = Path(spec.run_dir)
     if spec.state != "done":
         # once the run directory holds its recipe, --resume continues it: from its checkpoint,
         # or from step 0 when it was stopped before the first one
         if (run_dir / RECIPE_FILE).is_file() or (run_dir / CHECKPOINT).is_file():
-            out.append(("train", [*gcnt_command(), "train", "--resume", spec.run_dir]))
+            out.append(("train", [*gcnt_command(plugins), "train", "--resume", spec.run_dir]))
         else:
-            out.append(("train", [*gcnt_command(), "train", spec.recipe, *spec.overrides]))
+            out.append(
+                (
+                    "train",
+                    [
+                        *gcnt_command(plugins),
+                        "train",
+                        spec.recipe,
+                        *spec.overrides,
+                        NO_RECIPE_PLUGINS,
+                    ],
+                )
+            )
     for robots in spec.pending_evals():
-        out.append((f"eval:{robots}", eval_command(spec, robots)))
+        out.append((f"eval:{robots}", eval_command(spec, robots, plugins)))
     return out
 
 
-def eval_command(spec: RunSpec, robots: str) -> list[str]:
+def eval_command(spec: RunSpec, robots: str, plugins: list[str] | None = None) -> list[str]:
     """``gcnt eval RUN --robots ROBOTS``, with ``--episodes`` and ``--deterministic`` or
     ``--stochastic`` only where the sweep sets them (else the run's recipe decides)."""
-    argv = [*gcnt_command(), "eval", spec.run_dir, "--robots", robots]
+    argv = [*gcnt_command(plugins), "eval", spec.run_dir, "--robots", robots]
     if spec.eval_episodes is not None:
         argv += ["--episodes", str(spec.eval_episodes)]
     if spec.eval_deterministic is not None:
