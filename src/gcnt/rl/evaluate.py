@@ -273,11 +273,11 @@ def format_table(results: dict[str, dict]) -> str:
 def summarize_robots(results: dict[str, dict], *, resamples: int = 2000, seed: int = 0) -> dict:
     """The mean over robots of their mean returns, and around it, named for what it is: a 95%
     bootstrap confidence interval (percentile method, resampling robots; ``ci95_low``,
-    ``ci95_high``) over at least :data:`~gcnt.analysis.intervals.MIN_BOOTSTRAP` robots, else
+    ``ci95_high``) over at least :data:`~gcnt.bootstrap.MIN_BOOTSTRAP` robots, else
     the range of their means (``range_low``, ``range_high``; one robot: its mean)."""
     from scipy.stats import bootstrap
 
-    from gcnt.analysis.intervals import MIN_BOOTSTRAP
+    from gcnt.bootstrap import MIN_BOOTSTRAP
 
     x = np.array([r["mean"] for r in results.values()], dtype=np.float64)
     mean = float(x.mean())
