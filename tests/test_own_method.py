@@ -103,7 +103,9 @@ def test_the_quick_start_trains_a_method_of_ones_own_unchanged_and_embed_names_i
                  "logger.backend=none", *tiny, "--plugin", "meanmsg.py")  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     assert (run / "eval").is_dir() and (run / "checkpoints" / "last.pt").is_file()
-    done = _gcnt(folder, "embed", str(run), "--out", str(tmp_path / "fig"))
+    done = _gcnt(
+        folder, "embed", str(run), "--out", str(tmp_path / "fig"), "--plugin", "meanmsg.py"
+    )
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "not embedded: meanmsg (its chain writes no limbs/hidden and limbs/embed)" in done.stdout
     assert "no run with structural vectors" in done.stderr

@@ -54,7 +54,10 @@ def test_per_robot_expands_one_run_per_robot_of_the_split(tmp_path: Path) -> Non
     r = load_recipe(QUICKSTART, s.overrides)
     assert (r.env.robots, r.env.test_robots, r.network.name, r.seed) == (["hopper_4"], [], "mlp", 1)
     assert r.run_dir == s.run_dir
-    assert S.commands(s)[0][1][-len(s.overrides) :] == s.overrides
+    # the train command: the overrides, then no plugin from the recipe file (a sweep's runs get
+    # its command's plugins by --plugin only)
+    argv = S.commands(s)[0][1]
+    assert argv[-len(s.overrides) - 1 : -1] == s.overrides and argv[-1] == S.spec.NO_RECIPE_PLUGINS
 
 
 def test_per_robot_takes_a_list_and_labels_keep_sr_fair_and_sr_top_apart(tmp_path: Path) -> None:

@@ -31,7 +31,7 @@ from typing import Any
 
 import gcnt
 from gcnt import plugins
-from gcnt.files import MiB, read_json, rename, write_text
+from gcnt.files import KiB, MiB, read_json, read_text, rename, write_text
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +151,8 @@ def tested_versions() -> dict[str, str]:
     from gcnt.data_folders import tested_versions_file
 
     out: dict[str, str] = {}
-    for line in tested_versions_file().read_text().splitlines():
+    text = read_text(tested_versions_file(), 64 * KiB, "gcnt's tested versions", ValueError)
+    for line in text.splitlines():
         if line.strip() == "# dev":
             break
         name, sep, version = line.split("#")[0].strip().partition("==")

@@ -36,6 +36,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt import keys as K
 from gcnt import provenance
+from gcnt.files import KiB, read_text
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl import init_from, stop
@@ -128,7 +129,7 @@ def _stopped_workers(collector: Any) -> list[int]:
     out = []
     for i, proc in enumerate(getattr(collector, "procs", None) or []):
         try:
-            text = Path(f"/proc/{proc.pid}/stat").read_bytes().decode(errors="replace")
+            text = read_text(f"/proc/{proc.pid}/stat", 4 * KiB, "a worker's state", OSError)
         except (OSError, ValueError, TypeError):
             continue
         state = text.rpartition(")")[2].split()[:1]
