@@ -16,14 +16,13 @@ import shutil
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
 from gcnt import provenance
 from gcnt.files import GiB, append_text, open_regular, rename, save_torch, write_text
-from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError, load_run_recipe, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
@@ -33,6 +32,9 @@ from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: 
     strict_json,
 )
 from gcnt.rl.run_logger import RunLogger
+
+if TYPE_CHECKING:  # annotations only: the robots' module is not loaded with the run directory
+    from gcnt.morphology import Robot
 
 log = logging.getLogger(__name__)
 
