@@ -14,13 +14,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from source_scan import calls, unguarded
+from source_scan import mode as mode_of
 
 from gcnt.data_folders import MORPHOLOGIES_ENV
 from gcnt.files import MAX_DEPTH, MiB, read_json, read_regular, read_yaml
 from gcnt.morphology.catalogues import refresh_catalogues
 from gcnt.provenance import PROVENANCE_FILE, add_session
-
-SRC = Path(__file__).parents[1] / "src" / "gcnt"
 
 #: reads outside gcnt.files that are allowed, and why: (module, function, call)
 ALLOWED = {
@@ -37,23 +37,6 @@ ALLOWED = {
 }
 
 
-def _reads(tree: ast.AST) -> list[tuple[str, str, int]]:
-    """(enclosing function, call, line) of each call that reads a file."""
-    found = []
-
-    def visit(node: ast.AST, func: str) -> None:
-        for child in ast.iter_child_nodes(node):
-            name = child.name if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef) else func
-            if isinstance(child, ast.Call):
-                call = _read_call(child)
-                if call is not None:
-                    found.append((name, call, child.lineno))
-            visit(child, name)
-
-    visit(tree, "<module>")
-    return found
-
-
 def _read_call(node: ast.Call) -> str | None:
     f = node.func
     if isinstance(f, ast.Attribute):
@@ -65,36 +48,21 @@ def _read_call(node: ast.Call) -> str | None:
         if (owner, f.attr) in {("torch", "load"), ("np", "load"), ("numpy", "load")}:
             return f"{owner}.{f.attr}"
         if f.attr == "open" and owner not in ("os", "zipfile", "tarfile"):
-            mode = _mode(node, 0)
+            mode = mode_of(node, 0)
             return None if mode and any(c in mode for c in "wax") else "open"
     if isinstance(f, ast.Name) and f.id == "open":
-        mode = _mode(node, 1)
+        mode = mode_of(node, 1)
         if node.args and isinstance(node.args[0], ast.Name) and node.args[0].id == "fd":
             return None  # an already opened descriptor (gcnt.files)
         return None if mode and any(c in mode for c in "wax") else "open"
     return None
 
 
-def _mode(node: ast.Call, index: int) -> str | None:
-    args = [*node.args[index : index + 1], *(k.value for k in node.keywords if k.arg == "mode")]
-    for a in args:
-        if isinstance(a, ast.Constant) and isinstance(a.value, str):
-            return a.value
-    return None
-
-
 def test_every_read_of_a_file_goes_through_the_guarded_reader():
-    unguarded = []
-    for path in sorted(SRC.rglob("*.py")):
-        rel = path.relative_to(SRC).as_posix()
-        if rel == "files.py":
-            continue
-        for func, call, line in _reads(ast.parse(path.read_text(), rel)):
-            if (rel, func, call) not in ALLOWED:
-                unguarded.append(f"{rel}:{line} {func}: {call}")
-    assert not unguarded, (
+    unguarded_calls = unguarded(_read_call, ALLOWED)
+    assert not unguarded_calls, (
         "read through gcnt.files.read_regular/read_text/read_json/read_yaml:\n"
-        + ("\n".join(unguarded))
+        + ("\n".join(unguarded_calls))
     )
 
 
@@ -105,7 +73,7 @@ def test_the_scan_sees_plain_reads():
         "def h(p):\n    with p.open() as f:\n        return json.load(f)\n"
         "def w(p):\n    p.open('w')\n"
     )
-    assert [(f, c) for f, c, _ in _reads(ast.parse(code))] == [
+    assert [(f, c) for f, c, _ in calls(ast.parse(code), _read_call)] == [
         ("f", "read_text"),
         ("g", "yaml.safe_load"),
         ("g", "open"),

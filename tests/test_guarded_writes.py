@@ -6,9 +6,9 @@ device where gcnt writes is one line naming it, and what it points to is left as
 from __future__ import annotations
 
 import ast
-from pathlib import Path
 
-SRC = Path(__file__).parents[1] / "src" / "gcnt"
+from source_scan import calls, unguarded
+from source_scan import mode as mode_of
 
 #: writes outside gcnt.files that are allowed, and why: (module, function, call)
 ALLOWED = {
@@ -23,23 +23,6 @@ ALLOWED = {
 }
 
 _CREATING_FLAGS = {"O_CREAT", "O_WRONLY", "O_RDWR", "O_APPEND", "O_TRUNC"}
-
-
-def _writes(tree: ast.AST) -> list[tuple[str, str, int]]:
-    """(enclosing function, call, line) of each call that writes, moves or creates a file."""
-    found = []
-
-    def visit(node: ast.AST, func: str) -> None:
-        for child in ast.iter_child_nodes(node):
-            name = child.name if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef) else func
-            if isinstance(child, ast.Call):
-                call = _write_call(child)
-                if call is not None:
-                    found.append((name, call, child.lineno))
-            visit(child, name)
-
-    visit(tree, "<module>")
-    return found
 
 
 def _owner(f: ast.Attribute) -> str | None:
@@ -79,17 +62,17 @@ def _write_call(node: ast.Call) -> str | None:
         } or (owner == "shutil" and f.attr in ("copy", "copy2", "copyfile", "copytree", "move")):
             return f"{owner}.{f.attr}"
         if (owner, f.attr) == ("np", "memmap"):
-            return None if _mode(node, 2) == "r" else "np.memmap"
+            return None if mode_of(node, 2) == "r" else "np.memmap"
         if f.attr in ("savefig", "to_csv", "to_json", "to_parquet"):
             return _unless_file_object(node, f.attr)
         if f.attr == "open" and owner == "os":
             return "os.open" if _creating_flags(node) else None
         if f.attr == "open" and owner not in ("zipfile", "tarfile"):
-            mode = _mode(node, 0)
+            mode = mode_of(node, 0)
             return "open" if mode and any(c in mode for c in "wax+") else None
     if isinstance(f, ast.Name):
         if f.id == "open":
-            mode = _mode(node, 1)
+            mode = mode_of(node, 1)
             return "open" if mode and any(c in mode for c in "wax+") else None
         if f.id in ("FileHandler", "mkstemp", "NamedTemporaryFile", "copyfile", "copy2"):
             return f.id
@@ -113,26 +96,11 @@ def _creating_flags(node: ast.Call) -> bool:
     )
 
 
-def _mode(node: ast.Call, index: int) -> str | None:
-    args = [*node.args[index : index + 1], *(k.value for k in node.keywords if k.arg == "mode")]
-    for a in args:
-        if isinstance(a, ast.Constant) and isinstance(a.value, str):
-            return a.value
-    return None
-
-
 def test_every_write_of_a_file_goes_through_the_guarded_writer():
-    unguarded = []
-    for path in sorted(SRC.rglob("*.py")):
-        rel = path.relative_to(SRC).as_posix()
-        if rel == "files.py":
-            continue
-        for func, call, line in _writes(ast.parse(path.read_text(), rel)):
-            if (rel, func, call) not in ALLOWED:
-                unguarded.append(f"{rel}:{line} {func}: {call}")
-    assert not unguarded, (
+    unguarded_calls = unguarded(_write_call, ALLOWED)
+    assert not unguarded_calls, (
         "write through gcnt.files.write_text/write_bytes/writing/save_torch/append_text/"
-        "open_append/open_lock/rename:\n" + "\n".join(unguarded)
+        "open_append/open_lock/rename:\n" + "\n".join(unguarded_calls)
     )
 
 
@@ -149,7 +117,7 @@ def test_the_scan_sees_plain_writes():
         "def ok(p, s):\n    s.replace('a', 'b'); open(p); os.open(p, os.O_RDONLY)\n"
         "def ok2(fig, f, p):\n    fig.savefig(f); files.write_text(p, 'x'); write_text(p, 'x')\n"
     )
-    assert [(f, c) for f, c, _ in _writes(ast.parse(code))] == [
+    assert [(f, c) for f, c, _ in calls(ast.parse(code), _write_call)] == [
         ("a", "write_text"),
         ("b", "os.replace"),
         ("c", "open"),
