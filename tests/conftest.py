@@ -16,6 +16,7 @@ import torch
 from cli_helpers import tiny_td3_recipe
 
 import gcnt  # noqa: F401
+from gcnt import plugins
 from gcnt.cli import main as gcnt_cli
 
 #: the variable naming the user's robot-set folder (gcnt.data_folders)
@@ -32,6 +33,14 @@ def own_robot_sets(tmp_path_factory):
         os.environ.pop(MORPHOLOGIES_ENV, None)
     else:
         os.environ[MORPHOLOGIES_ENV] = old
+
+
+@pytest.fixture(autouse=True)
+def own_plugin_session():
+    """Each test's plugins are its own: a recipe a test loads in-process (``load_recipe``) adds
+    its plugins to the session, as a command's would, and a later test's runs would record them."""
+    yield
+    plugins.end_session()
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 import torch
 
 from gcnt.cli import main as gcnt
@@ -244,16 +245,36 @@ eval: {{episodes: 1}}
 # ------------------------------------------------------------------ the refusal comes first
 
 
-def test_eval_refuses_a_run_without_test_robots_before_loading_torch(run):
+def _eval_in_a_new_process(run: Path) -> subprocess.CompletedProcess:
+    """``gcnt eval RUN`` in a fresh interpreter; prints its exit code and whether it loaded
+    torch and MuJoCo."""
     code = (
         "import sys\n"
         "from gcnt.cli import main\n"
         f"rc = main(['eval', {str(run)!r}])\n"
         "print(rc, 'torch' in sys.modules, 'mujoco' in sys.modules)\n"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+
+
+def test_eval_refuses_a_run_without_test_robots_before_loading_torch(run):
+    done = _eval_in_a_new_process(run)
     assert done.stdout.split() == ["2", "False", "False"], done.stdout + done.stderr
     assert f"{run}: no robots to evaluate" in done.stderr
+
+
+def test_a_recorded_plugin_not_named_here_loads_no_torch_for_a_built_in_method(run, tmp_path):
+    """The run recorded a plugin (imported in its process) but is a built-in method's: checking
+    the record needs no registry that loads torch."""
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    recipe = copy / "recipe.yaml"
+    data = yaml.safe_load(recipe.read_text())
+    data["resolved"]["plugins"] = [{"name": "elsewhere.py", "sha256": "0" * 64}]
+    recipe.write_text(yaml.safe_dump(data, sort_keys=False))
+    done = _eval_in_a_new_process(copy)
+    assert done.stdout.split() == ["2", "False", "False"], done.stdout + done.stderr
+    assert f"{copy}: no robots to evaluate" in done.stderr
 
 
 @needs_gym

@@ -34,7 +34,7 @@ import logging
 import os
 import re
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -269,15 +269,17 @@ def recorded_identity(entry: Any) -> dict[str, Any] | None:
     return None
 
 
-def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[str]) -> None:
+def check_recorded(
+    recorded: Iterable[Any], run: str | Path, needed: Callable[[], Iterable[str]]
+) -> None:
     """Check the plugins ``run`` recorded against those this process imported.
 
     A recorded plugin is matched by the hash of its source, else by its name (then a warning
-    names both hashes where they differ). ``needed``: what the run names that no imported code
-    registers (its method, benchmark or algorithm); if any, an unmatched recorded plugin is a
+    names both hashes where they differ). ``needed()``: what the run names that no imported code
+    registers (its method, benchmark or algorithm), asked only when a recorded plugin is
+    unmatched (it reads the registries, which loads torch); if any, the unmatched plugin is a
     PluginError naming it, its hash and ``--plugin``. Nothing is ever imported from the record.
     """
-    needed = list(needed)
     have = list(_loaded.values())
     missing = []
     for entry in recorded:
@@ -300,11 +302,14 @@ def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[st
                 )
             continue
         missing.append(ident)
-    if needed and missing:
+    if not missing:
+        return
+    names = list(needed())
+    if names:
         first = missing[0]
         sha = f" (sha256 {_short(first['sha256'])})" if first["sha256"] else ""
         raise PluginError(
-            f"{run} names {', '.join(needed)}, which no code imported here registers; it was "
+            f"{run} names {', '.join(names)}, which no code imported here registers; it was "
             f"trained with the plugin {first['name']}{sha}, which this command did not name "
             f"(gcnt never imports a run's plugins): pass it with `gcnt --plugin "
             f"PATH_OR_MODULE ...` (or {ENV_VAR})"

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -209,16 +210,20 @@ def recorded_plugins(recipe: Mapping[str, Any]) -> list[Any]:
 
 def unregistered_names(recipe: Mapping[str, Any]) -> list[str]:
     """What a recorded recipe names that nothing imported here registers: its algorithm,
-    method (``network.name``) and benchmark."""
+    method (``network.name``) and benchmark. Read without loading torch: a method is built in,
+    or was registered by code that has loaded the network registry already."""
+    from gcnt.analysis.names import BUILTIN_METHODS
     from gcnt.envs.benchmark import benchmark_names
-    from gcnt.nn.registry import NETWORKS
     from gcnt.recipes import algorithm_names
+
+    registry = sys.modules.get("gcnt.nn.registry")
+    networks = {*BUILTIN_METHODS, *(registry.NETWORKS if registry is not None else ())}
 
     env = recipe.get("env") if isinstance(recipe.get("env"), Mapping) else {}
     net = recipe.get("network") if isinstance(recipe.get("network"), Mapping) else {}
     wanted = (
         ("algo", recipe.get("algo", "td3"), algorithm_names()),
-        ("network.name", net.get("name", "gcnt"), list(NETWORKS)),
+        ("network.name", net.get("name", "gcnt"), networks),
         ("env.benchmark", env.get("benchmark", "smpenv"), benchmark_names()),
     )
     return [f"{key}={value}" for key, value, known in wanted if str(value) not in known]
@@ -232,4 +237,4 @@ def check_plugins(run_dir: str | Path, recipe: Mapping[str, Any]) -> None:
     recorded = recorded_plugins(recipe)
     if not recorded:
         return
-    plugins.check_recorded(recorded, run_dir, unregistered_names(recipe))
+    plugins.check_recorded(recorded, run_dir, lambda: unregistered_names(recipe))

@@ -42,9 +42,9 @@ class NoStructureError(AnalysisError):
 def has_structure(method: str) -> bool:
     """Whether ``method`` may have a structural vector: gcnt's methods that have one, and any
     method of a plugin (its chain is checked when built: :class:`NoStructureError`)."""
-    from gcnt.nn.registry import BUILT_IN, NETWORKS
+    from gcnt.nn.registry import BUILTIN_NETWORKS, NETWORKS
 
-    return method in STRUCTURAL_METHODS or (method in NETWORKS and method not in BUILT_IN)
+    return method in STRUCTURAL_METHODS or (method in NETWORKS and method not in BUILTIN_NETWORKS)
 
 
 @dataclass

@@ -160,9 +160,6 @@ register_network(
 #: runs are never shown or averaged as a built-in method's)
 BUILTIN_NETWORKS = frozenset(NETWORKS)
 
-#: the methods gcnt itself registers (the others come from plugins)
-BUILT_IN = frozenset(NETWORKS)
-
 
 def make_config(name: str, preset: str = "smpenv", **overrides: Any) -> NetConfig:
     """The config of method ``name`` at ``preset`` sizes with ``overrides``."""
