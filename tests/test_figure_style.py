@@ -43,11 +43,11 @@ def _svg_text(path: Path) -> str:
 
 
 def test_every_registered_method_and_shipped_task_has_a_display_name() -> None:
-    from gcnt.analysis.names import BUILTIN_METHODS
+    from gcnt import builtin
     from gcnt.nn.registry import BUILTIN_NETWORKS, NETWORKS
 
     assert set(NETWORKS) <= set(METHOD_NAMES)
-    assert BUILTIN_METHODS == BUILTIN_NETWORKS  # the torch-free list of gcnt's own methods
+    assert builtin.METHODS == BUILTIN_NETWORKS  # the torch-free list of gcnt's own methods
     assert display_name("metamorph_star") == "MetaMorph*" and display_name("gcnt_hn") == "GCNT+HN"
     shipped = set()
     for recipe in ROOT.glob("recipes/*/*.yaml"):

@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 
 import pytest
-import yaml
 import torch
+import yaml
 
 from gcnt.cli import main as gcnt
 from gcnt.envs.smpenv import SMPEnv

@@ -210,21 +210,21 @@ def recorded_plugins(recipe: Mapping[str, Any]) -> list[Any]:
 
 def unregistered_names(recipe: Mapping[str, Any]) -> list[str]:
     """What a recorded recipe names that nothing imported here registers: its algorithm,
-    method (``network.name``) and benchmark. Read without loading torch: a method is built in,
-    or was registered by code that has loaded the network registry already."""
-    from gcnt.analysis.names import BUILTIN_METHODS
-    from gcnt.envs.benchmark import benchmark_names
+    method (``network.name``) and benchmark. Read without loading torch: a method or benchmark
+    is built in, or was registered by code that has loaded its registry already."""
+    from gcnt import builtin
     from gcnt.recipes import algorithm_names
 
-    registry = sys.modules.get("gcnt.nn.registry")
-    networks = {*BUILTIN_METHODS, *(registry.NETWORKS if registry is not None else ())}
+    networks = {*builtin.METHODS, *getattr(sys.modules.get("gcnt.nn.registry"), "NETWORKS", ())}
+    registry = sys.modules.get("gcnt.envs.benchmark")
+    benchmarks = {*builtin.BENCHMARKS, *(registry.benchmark_names() if registry else ())}
 
     env = recipe.get("env") if isinstance(recipe.get("env"), Mapping) else {}
     net = recipe.get("network") if isinstance(recipe.get("network"), Mapping) else {}
     wanted = (
         ("algo", recipe.get("algo", "td3"), algorithm_names()),
         ("network.name", net.get("name", "gcnt"), networks),
-        ("env.benchmark", env.get("benchmark", "smpenv"), benchmark_names()),
+        ("env.benchmark", env.get("benchmark", "smpenv"), benchmarks),
     )
     return [f"{key}={value}" for key, value, known in wanted if str(value) not in known]
 

@@ -33,9 +33,6 @@ METHOD_NAMES: dict[str, str] = {
     "sr": "SR",
     "mlp": "MLP",
 }
-#: the methods gcnt itself defines (:data:`gcnt.nn.registry.BUILTIN_NETWORKS`), known without
-#: loading torch
-BUILTIN_METHODS = frozenset(METHOD_NAMES)
 
 #: the task ids of the shipped recipes (``recipes/*/*.yaml``)
 TASKS = (

@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from gcnt.builtin import BENCHMARKS as BUILTIN_BENCHMARKS
 from gcnt.suggest import did_you_mean
 
 #: make_env(robots, *, max_limbs, max_episode_steps, seed, num_threads, robot_ids, device,
@@ -72,11 +73,7 @@ class Benchmark:
 
 _REGISTRY: dict[str, Benchmark] = {}
 #: built-in benchmarks, imported on first use (keeps ``gcnt --help`` free of torch/mujoco)
-_BUILTIN: dict[str, str] = {
-    "smpenv": "gcnt.envs.smpenv:SMPENV_BENCHMARK",
-    "unimal": "gcnt.envs.unimal:UNIMAL_BENCHMARK",
-    "mjcf3d": "gcnt.envs.mjcf3d:MJCF3D_BENCHMARK",
-}
+_BUILTIN = BUILTIN_BENCHMARKS
 
 
 def register_benchmark(benchmark: Benchmark, *, replace: bool = False) -> Benchmark:
