@@ -349,3 +349,15 @@ def test_a_run_written_before_the_record_has_none_and_still_evaluates(tmp_path):
     section = yaml.safe_load((run / "recipe.yaml").read_text()).get("resolved") or {}
     assert RunRecord.from_resolved(section) is None
     assert gcnt_main(["eval", str(run), "--robots", "train", "--episodes", "1"]) == 0
+
+
+def test_eval_of_a_test_list_that_names_no_robots_is_one_line(tmp_path, capsys):
+    """``Hopper++:test`` is a split without robots: evaluating it is refused in one line (it
+    was a traceback from the padding of an empty robot list)."""
+    from cli_helpers import error_line
+
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["Hopper++:test"])
+    run = tmp_path / "run"
+    assert gcnt_main(["train", str(recipe), f"run_dir={run}"]) == 0
+    line = error_line(capsys, ["eval", str(run)])
+    assert f"{run}: no robots to evaluate (Hopper++:test name none)" in line
