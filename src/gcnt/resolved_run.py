@@ -120,7 +120,7 @@ def benchmark_of(recipe: Recipe) -> Any:
 
 def network_sizes(recipe: Recipe) -> dict[str, Any]:
     """The recipe's network configuration with its preset and overrides resolved, as the
-    network builder reads it (a RecipeError naming a bad name or size)."""
+    network builder reads it, as plain data (a RecipeError naming a bad name or size)."""
     from gcnt.nn.registry import make_config
 
     net = recipe.network
@@ -129,7 +129,7 @@ def network_sizes(recipe: Recipe) -> dict[str, Any]:
         config = make_config(net.name, preset, **net.sizes())
     except (ValueError, TypeError) as e:
         raise RecipeError(f"network: {e}") from None
-    return dataclasses.asdict(config)
+    return _plain(dataclasses.asdict(config))
 
 
 def check_benchmark(recipe: Recipe, robots: Sequence[Any], where: str) -> list[Any]:
@@ -238,7 +238,7 @@ def _resolve(recipe: Recipe, lookups: dict[str, Any]) -> RunRecord:
         benchmark=bench.name,
         world=bench.check_world(recipe.env.world),
         method=recipe.network.name,
-        network=_plain(network),
+        network=network,
         algo=recipe.algo,
         settings=_plain(dataclasses.asdict(settings) if dataclasses.is_dataclass(settings) else {}),
         device=recipe.device,
