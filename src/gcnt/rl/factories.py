@@ -18,9 +18,7 @@ from gcnt.morphology import Robot
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.registry import make_network
 from gcnt.recipes import Recipe
-from gcnt.resolved_run import benchmark_of, check_benchmark, resolve_run
-
-__all__ = ["benchmark_of", "check_benchmark", "make_env", "make_net", "run_robots", "train_robots"]
+from gcnt.resolved_run import benchmark_of, resolve_run
 
 
 def run_robots(recipe: Recipe) -> tuple[list[Robot], list[Robot]]:
