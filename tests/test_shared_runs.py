@@ -318,6 +318,22 @@ def test_a_train_start_resolves_each_robot_list_once(tmp_path, monkeypatch):
     assert sorted(lookups) == ["hopper_3", "hopper_4", "walker_3_main"]
 
 
+def test_the_seeds_of_one_train_command_look_up_each_robot_spec_once(tmp_path, monkeypatch):
+    calls, lookups = _count_lookups(monkeypatch)
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4"])
+    argv = [
+        "train",
+        str(recipe),
+        f"run_dir={tmp_path / 'runs'}",
+        "td3.schedule=mixed",
+        "--seeds",
+        "0,1",
+    ]
+    assert gcnt_main(argv) == 0
+    assert sorted(calls) == [["hopper_3"], ["hopper_3"], ["hopper_4"], ["hopper_4"]]
+    assert sorted(lookups) == ["hopper_3", "hopper_4"]
+
+
 def test_an_eval_looks_up_each_robot_spec_once(tmp_path, monkeypatch):
     recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4", "walker_3_main"])
     run = tmp_path / "run"

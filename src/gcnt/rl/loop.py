@@ -278,12 +278,13 @@ class Prepared:
     record: RunRecord
 
 
-def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
+def prepare(recipe: Recipe, *, resume: bool = False, lookups: dict | None = None) -> Prepared:
     """Seed, then build the robots, the benchmark's env and the algorithm (bad input fails
     here, before anything is written); the derived sizes go to ``recipe.resolved``. A new run
     with ``init_from`` takes over that run's trained networks here (``gcnt.rl.init_from``);
-    ``resume``: the run continues its own checkpoint instead."""
-    record = check_recipe(recipe)
+    ``resume``: the run continues its own checkpoint instead. ``lookups``: robot specs this
+    command looked up already (the seeds of one ``--seeds`` command share them)."""
+    record = check_recipe(recipe, lookups=lookups)
     if recipe.compile.torch_threads is not None:
         torch.set_num_threads(recipe.compile.torch_threads)
     seed_everything(recipe.seed)
