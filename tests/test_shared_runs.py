@@ -230,6 +230,16 @@ def test_rl_reads_runs_through_the_layer_below_it():
     assert users == []
 
 
+def test_the_run_record_lives_below_rl_and_analysis():
+    import ast
+
+    tree = ast.parse((ROOT / "src" / "gcnt" / "resolved_run.py").read_text())
+    imported = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    imported += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    assert "gcnt.recipes" in imported
+    assert [m for m in imported if m.startswith(("gcnt.rl", "gcnt.analysis"))] == []
+
+
 _BOX_OBJ = (
     "".join(
         f"v {x} {y} {z}\n"
@@ -277,21 +287,103 @@ def test_a_stored_robot_keeps_the_asset_files_it_references(tmp_path):
     assert robot_sha256(again) == sha
 
 
-def test_a_train_start_resolves_each_robot_list_once(tmp_path, monkeypatch):
-    """One ``gcnt train`` (checks, env, record, the final evaluation of training and test
-    robots) resolves its training list and its test list once each."""
-    import gcnt.rl.evaluate
-    import gcnt.rl.factories
-
-    calls = []
-    real = catalogues.resolve_robots
+def _count_lookups(monkeypatch) -> tuple[list[list[str]], list[str]]:
+    """Record every ``resolve_robots`` call (its specs) and every spec looked up in the
+    catalogues (read into robots), wherever the call comes from."""
+    calls: list[list[str]] = []
+    lookups: list[str] = []
+    real_resolve, real_lookup = catalogues.resolve_robots, catalogues._lookup
 
     def counted(specs, **kw):
         calls.append(list(specs))
-        return real(specs, **kw)
+        return real_resolve(specs, **kw)
 
-    for module in (catalogues, gcnt.rl.factories, gcnt.rl.evaluate):
-        monkeypatch.setattr(module, "resolve_robots", counted)
-    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4"])
+    def looked_up(spec):
+        lookups.append(spec)
+        return real_lookup(spec)
+
+    monkeypatch.setattr(catalogues, "resolve_robots", counted)
+    monkeypatch.setattr(catalogues, "_lookup", looked_up)
+    return calls, lookups
+
+
+def test_a_train_start_resolves_each_robot_list_once(tmp_path, monkeypatch):
+    """One ``gcnt train`` (checks, env, record, the final evaluation of training and test
+    robots) resolves its training list and its test list once each, and looks up each robot
+    spec of the run once (before the run's record: each spec three times)."""
+    calls, lookups = _count_lookups(monkeypatch)
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4", "walker_3_main"])
     assert gcnt_main(["train", str(recipe), f"run_dir={tmp_path / 'run'}"]) == 0
-    assert sorted(calls) == [["hopper_3"], ["hopper_4"]]
+    assert sorted(calls) == [["hopper_3"], ["hopper_4", "walker_3_main"]]
+    assert sorted(lookups) == ["hopper_3", "hopper_4", "walker_3_main"]
+
+
+def test_the_seeds_of_one_train_command_look_up_each_robot_spec_once(tmp_path, monkeypatch):
+    calls, lookups = _count_lookups(monkeypatch)
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4"])
+    argv = [
+        "train",
+        str(recipe),
+        f"run_dir={tmp_path / 'runs'}",
+        "td3.schedule=mixed",
+        "--seeds",
+        "0,1",
+    ]
+    assert gcnt_main(argv) == 0
+    assert sorted(calls) == [["hopper_3"], ["hopper_3"], ["hopper_4"], ["hopper_4"]]
+    assert sorted(lookups) == ["hopper_3", "hopper_4"]
+
+
+def test_an_eval_looks_up_each_robot_spec_once(tmp_path, monkeypatch):
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4", "walker_3_main"])
+    run = tmp_path / "run"
+    assert gcnt_main(["train", str(recipe), f"run_dir={run}"]) == 0
+    _, lookups = _count_lookups(monkeypatch)
+    assert gcnt_main(["eval", str(run), "--episodes", "1"]) == 0
+    assert sorted(lookups) == ["hopper_3", "hopper_4", "walker_3_main"]
+    lookups.clear()
+    assert gcnt_main(["eval", str(run), "--episodes", "1", "--robots", "hopper_5"]) == 0
+    assert sorted(lookups) == ["hopper_3", "hopper_4", "hopper_5", "walker_3_main"]
+
+
+def test_the_record_a_run_writes_reads_back_equal(tmp_path):
+    """The run's record (benchmark, world, robots with their hashes, method and network sizes,
+    algorithm settings, plugins, device, seed) as ``recipe.yaml`` holds it reads back equal to
+    the record the run was trained from."""
+    from gcnt.recipes import load_recipe
+    from gcnt.resolved_run import RunRecord, resolve_run
+
+    recipe_file = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4"])
+    run = tmp_path / "run"
+    assert gcnt_main(["train", str(recipe_file), f"run_dir={run}"]) == 0
+    section = yaml.safe_load((run / "recipe.yaml").read_text())["resolved"]
+    read = RunRecord.from_resolved(section)
+    made = resolve_run(load_recipe(recipe_file, [f"run_dir={run}"]))
+    assert read == made
+    assert read.benchmark == "smpenv" and read.method == "gcnt" and read.algo == "td3"
+    assert read.network["d_model"] == 16 and read.settings["batch_size"] == 8
+    assert read.robots["train"] == ["hopper_3"] and read.robots["test"] == ["hopper_4"]
+    assert read.robots["index"]["hopper_3"]["sha256"] == robot_sha256(made.train_robots[0])
+    assert RunRecord.from_resolved(RunDir(run).load_recipe().resolved) == made
+    assert gcnt.load_run(run).record == made
+
+
+def test_a_run_written_before_the_record_has_none_and_still_evaluates(tmp_path):
+    from gcnt.resolved_run import RunRecord
+
+    run = _old_run(tmp_path)
+    section = yaml.safe_load((run / "recipe.yaml").read_text()).get("resolved") or {}
+    assert RunRecord.from_resolved(section) is None
+    assert gcnt_main(["eval", str(run), "--robots", "train", "--episodes", "1"]) == 0
+
+
+def test_eval_of_a_test_list_that_names_no_robots_is_one_line(tmp_path, capsys):
+    """``Hopper++:test`` is a split without robots: evaluating it is refused in one line (it
+    was a traceback from the padding of an empty robot list)."""
+    from cli_helpers import error_line
+
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["Hopper++:test"])
+    run = tmp_path / "run"
+    assert gcnt_main(["train", str(recipe), f"run_dir={run}"]) == 0
+    line = error_line(capsys, ["eval", str(run)])
+    assert f"{run}: no robots to evaluate (Hopper++:test name none)" in line

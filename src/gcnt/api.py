@@ -44,6 +44,15 @@ class LoadedRun:
         resolved = self.recipe.get("resolved")
         return dict(resolved.get("robots") or {}) if isinstance(resolved, dict) else {}
 
+    @property
+    def record(self) -> Any:
+        """The run's record (:class:`gcnt.resolved_run.RunRecord`); None for a run written
+        before the record."""
+        from gcnt.resolved_run import RunRecord
+
+        resolved = self.recipe.get("resolved")
+        return RunRecord.from_resolved(resolved) if isinstance(resolved, dict) else None
+
 
 def load_run(run: str | Path) -> LoadedRun:
     """The record of the run directory ``run``, its metrics and its evaluations."""

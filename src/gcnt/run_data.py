@@ -460,6 +460,16 @@ class Run:
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
     @property
+    def record(self) -> Any:
+        """The run's record as it wrote it (:class:`gcnt.resolved_run.RunRecord`: benchmark,
+        robots with their hashes, method and network sizes, algorithm settings, plugins, device,
+        seed); None for a run written before the record."""
+        from gcnt.resolved_run import RunRecord
+
+        section = self.recipe.get("resolved")
+        return RunRecord.from_resolved(section) if isinstance(section, dict) else None
+
+    @property
     def fine_tune_of(self) -> str | None:
         """Where a fine-tuned run started (``init_from``): ``<task> run <path>`` from the
         record of its source run, or the path alone in a recipe without that record; None for

@@ -25,15 +25,16 @@ DEFAULT_ROBOT = "humanoid_2d_9_full"
 
 def _policy_and_env(run: Run, robot: str, seed: int):
     """The run's trained deterministic policy and a one-robot env for ``robot``."""
-    from gcnt.morphology.catalogues import resolve_robots
+    from gcnt.resolved_run import resolve_run
     from gcnt.rl.algorithm import get_algorithm
     from gcnt.rl.factories import make_env
     from gcnt.rl.run_dir import RunDir
 
     recipe = RunDir(run.path).load_recipe(anywhere=True)
     policy_state = run.policy_state()
-    robots = resolve_robots([robot])
-    train_k = recipe.env.max_limbs or max(r.num_limbs for r in resolve_robots(recipe.env.robots))
+    record = resolve_run(recipe)
+    robots = record.robots_of([robot], recipe)
+    train_k = recipe.env.max_limbs or max(r.num_limbs for r in record.train_robots)
     max_limbs = max(train_k, *(r.num_limbs for r in robots))
     env = make_env(recipe, robots, seed=seed, max_limbs=max_limbs, num_threads=1)
     policy = get_algorithm(recipe.algo).eval_policy(recipe, policy_state, env, deterministic=True)

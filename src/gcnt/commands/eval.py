@@ -167,15 +167,20 @@ def run(args: argparse.Namespace) -> int:
     from gcnt.morphology.catalogues import resolve_robots
     from gcnt.recipes import run_robot_specs
 
-    # unknown names, bad files: before torch loads; named as in the run's own robot lists
-    robots = resolve_robots(specs, repeats=True, names_from=run_robot_specs(recipe))
+    # unknown names, bad files: before torch loads; named as in the run's own robot lists, each
+    # spec looked up once in this command (the run's record below reuses what is looked up here)
+    lookups: dict = {}
+    robots = resolve_robots(
+        specs, repeats=True, names_from=run_robot_specs(recipe), lookups=lookups
+    )
+    if not robots:
+        raise RecipeError(f"{path}: no robots to evaluate ({', '.join(specs)} name none)")
+    from gcnt.resolved_run import check_benchmark, resolve_run
     from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
-    from gcnt.rl.factories import check_benchmark
-    from gcnt.rl.loop import check_network
     from gcnt.rl.run_dir import CheckpointError, RunDir, RunDirError
 
     run_dir = RunDir(path)
-    check_network(recipe)
+    resolve_run(recipe, lookups=lookups)  # the network, benchmark and robots the run names
     check_benchmark(recipe, robots, f"--robots of run {run_dir.path}")
     run_dir.check_links()  # a link out of the run directory is refused before any work
     state = run_dir.load_checkpoint()

@@ -633,35 +633,49 @@ def _name_apart(
     return out
 
 
-def _resolve_each(specs: Sequence[str], *, repeats: bool) -> tuple[list[Robot], list[bool]]:
-    """The robots of ``specs`` as read (not yet named apart), and which were read from files."""
+#: a robot spec -> its robots as read and whether they came from files: what one command has
+#: looked up, each spec once
+Lookups = dict[str, tuple[list[Robot], bool]]
+
+
+def _lookup(spec: str) -> tuple[list[Robot], bool]:
+    """The robots ``spec`` names, as read (not yet named apart), and whether from files."""
+    path = Path(spec)
+    if spec in _PINNED:
+        return [_load_pinned(*stored) for stored in _PINNED[spec]], False
+    if robot_catalogue(spec) is not None:
+        return [load_named(spec)], False
+    if _is_pattern(spec) and not path.exists():
+        return [load_named(n) for n in _matching_names(spec)], False
+    if path.is_dir():
+        return _folder_robots(path), True
+    if spec.endswith(".xml") or os.sep in spec or path.is_file():
+        return [load_robot(spec)], True
+    benchmarks = load_benchmarks()
+    if ":" in spec or spec in benchmarks:
+        return [load_named(n) for n in _benchmark_names(spec, benchmarks)], False
+    raise UnknownRobotError(
+        f"unknown robot {spec!r}{did_you_mean(spec, [*_name_index(), *benchmarks])} "
+        f"(a spec is a robot name, an .xml path or folder, or one of "
+        f"{', '.join(b + ':train|test' for b in benchmarks)})"
+    )
+
+
+def _resolve_each(
+    specs: Sequence[str], *, repeats: bool, lookups: Lookups | None = None
+) -> tuple[list[Robot], list[bool]]:
+    """The robots of ``specs`` as read (not yet named apart), and which were read from files;
+    ``lookups``: specs this command has looked up already (and where the new ones are kept)."""
     robots: list[Robot] = []
     from_file: list[bool] = []
     origin: dict[tuple[str, ...], tuple[str, str]] = {}  # identity -> (name, spec)
-    benchmarks: dict[str, dict[str, list[str]]] | None = None
     for spec in specs:
-        path = Path(spec)
-        is_file = False
-        if spec in _PINNED:
-            found = [_load_pinned(*stored) for stored in _PINNED[spec]]
-        elif robot_catalogue(spec) is not None:
-            found = [load_named(spec)]
-        elif _is_pattern(spec) and not path.exists():
-            found = [load_named(n) for n in _matching_names(spec)]
-        elif path.is_dir():
-            found, is_file = _folder_robots(path), True
-        elif spec.endswith(".xml") or os.sep in spec or path.is_file():
-            found, is_file = [load_robot(spec)], True
+        if lookups is not None and spec in lookups:
+            found, is_file = lookups[spec]
         else:
-            benchmarks = benchmarks if benchmarks is not None else load_benchmarks()
-            if ":" in spec or spec in benchmarks:
-                found = [load_named(n) for n in _benchmark_names(spec, benchmarks)]
-            else:
-                raise UnknownRobotError(
-                    f"unknown robot {spec!r}{did_you_mean(spec, [*_name_index(), *benchmarks])} "
-                    f"(a spec is a robot name, an .xml path or folder, or one of "
-                    f"{', '.join(b + ':train|test' for b in benchmarks)})"
-                )
+            found, is_file = _lookup(spec)
+            if lookups is not None:
+                lookups[spec] = (found, is_file)
         if is_file:  # a catalogue's file whose robot has another name: that name
             found = [_as_catalogue_robot(r) for r in found]
         for r in found:
@@ -692,7 +706,7 @@ def _as_catalogue_robot(robot: Robot) -> Robot:
     return known if robot_identity(known) == robot_identity(robot) else robot
 
 
-def _names_of(specs: Sequence[str]) -> dict[tuple[str, ...], Robot]:
+def _names_of(specs: Sequence[str], lookups: Lookups | None = None) -> dict[tuple[str, ...], Robot]:
     """Robot identity -> robot, named apart, for the robots of ``specs`` taken together; a spec
     that no longer resolves (a robot file since moved) is left out."""
     robots: list[Robot] = []
@@ -700,7 +714,7 @@ def _names_of(specs: Sequence[str]) -> dict[tuple[str, ...], Robot]:
     keys: set[tuple[str, ...]] = set()
     for spec in specs:
         try:
-            found, files = _resolve_each([spec], repeats=True)
+            found, files = _resolve_each([spec], repeats=True, lookups=lookups)
         except (ValueError, OSError):
             continue
         for r, f in zip(found, files, strict=True):
@@ -712,7 +726,11 @@ def _names_of(specs: Sequence[str]) -> dict[tuple[str, ...], Robot]:
 
 
 def resolve_robots(
-    specs: Sequence[str], *, repeats: bool = False, names_from: Sequence[str] = ()
+    specs: Sequence[str],
+    *,
+    repeats: bool = False,
+    names_from: Sequence[str] = (),
+    lookups: Lookups | None = None,
 ) -> list[Robot]:
     """Robots from specs, in order. A spec is one of:
 
@@ -733,13 +751,17 @@ def resolve_robots(
     ``names_from``: more specs whose robots the names are chosen among (a run's robot lists,
     :func:`gcnt.recipes.run_robot_specs`), so that a robot file keeps one name in every
     list of a run; a robot of ``specs`` that is not among them is named apart from them.
+
+    ``lookups``: what this command looked up already, spec by spec (a run's record,
+    :func:`gcnt.resolved_run.resolve_run`): a spec given there is not looked up again, and the
+    specs looked up here are added (one lookup of each spec per command).
     """
     if isinstance(specs, str):
         specs = [specs]
-    robots, from_file = _resolve_each(specs, repeats=repeats)
+    robots, from_file = _resolve_each(specs, repeats=repeats, lookups=lookups)
     if not names_from:
         return _name_apart(robots, from_file)
-    named = _names_of(names_from)
+    named = _names_of(names_from, lookups)
     out = [
         dataclasses.replace(r, name=named[key].name) if (key := robot_identity(r)) in named else r
         for r in robots

@@ -26,7 +26,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from gcnt.files import write_output, write_text
 from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
-from gcnt.recipes import Recipe, run_robot_specs
+from gcnt.recipes import Recipe
+from gcnt.resolved_run import resolve_run
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.device import on_device
 from gcnt.rl.factories import base_env, make_env, run_robots
@@ -47,17 +48,9 @@ def eval_robots(specs: Sequence[str], recipe: Recipe | None = None) -> list[Robo
     """The robots of ``specs``, each once (a robot named twice is evaluated once; robot files
     of one name are distinct robots, see :func:`~gcnt.morphology.catalogues.resolve_robots`),
     named as in the run of ``recipe`` (:func:`~gcnt.recipes.run_robot_specs`)."""
-    if recipe is not None:  # the run's own lists: as resolved once for the recipe
-        train, tests = run_robots(recipe)
-        lists = {
-            tuple(recipe.env.robots): train,
-            tuple(recipe.env.test_robots): tests,
-            (*recipe.env.robots, *recipe.env.test_robots): [*train, *tests],
-        }
-        if tuple(specs) in lists and specs:
-            return list(lists[tuple(specs)])
-    names_from = run_robot_specs(recipe) if recipe is not None else ()
-    return resolve_robots(specs, repeats=True, names_from=names_from)
+    if recipe is None:
+        return resolve_robots(specs, repeats=True)
+    return resolve_run(recipe).robots_of(specs, recipe)
 
 
 def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:

@@ -6,7 +6,6 @@ widths are read from the env's specs, so nothing here knows a benchmark's number
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from typing import Any
 
@@ -14,97 +13,24 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 
-from gcnt.envs.benchmark import Benchmark, get_benchmark
 from gcnt.keys import ACTION, HFIELD, OBS
 from gcnt.morphology import Robot
-from gcnt.morphology.catalogues import resolve_robots, robot_catalogue, robot_identity
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.registry import make_network
-from gcnt.recipes import Recipe, RecipeError, run_robot_specs
-
-
-def benchmark_of(recipe: Recipe) -> Benchmark:
-    try:
-        bench = get_benchmark(recipe.env.benchmark)
-        bench.check_world(recipe.env.world)
-    except ValueError as e:
-        raise RecipeError(f"env: {e}") from None
-    return bench
-
-
-#: id(recipe) -> (the recipe, its robot specs, (training robots, test robots))
-_RESOLVED: dict[int, tuple[Recipe, tuple, tuple[list[Robot], list[Robot]]]] = {}
+from gcnt.recipes import Recipe
+from gcnt.resolved_run import benchmark_of, resolve_run
 
 
 def run_robots(recipe: Recipe) -> tuple[list[Robot], list[Robot]]:
-    """The recipe's training and test robots, resolved once per recipe object and robot lists
-    (named as in the run: :func:`~gcnt.recipes.run_robot_specs`): every check, the env, the
-    evaluations and the run's record of a command start from these."""
-    key = (tuple(recipe.env.robots), tuple(recipe.env.test_robots), tuple(recipe.eval.robots))
-    held = _RESOLVED.get(id(recipe))
-    if held is not None and held[0] is recipe and held[1] == key:
-        return held[2]
-    names_from = run_robot_specs(recipe)
-    train = resolve_robots(recipe.env.robots, names_from=names_from) if recipe.env.robots else []
-    tests = (
-        resolve_robots(recipe.env.test_robots, names_from=names_from)
-        if recipe.env.test_robots
-        else []
-    )
-    if len(_RESOLVED) > 64:  # a process that builds many recipes (a sweep's checks)
-        _RESOLVED.clear()
-    _RESOLVED[id(recipe)] = (recipe, key, (train, tests))
-    return train, tests
+    """The recipe's training and test robots as its run's record holds them
+    (:func:`gcnt.resolved_run.resolve_run`: resolved and checked once per recipe)."""
+    record = resolve_run(recipe)
+    return list(record.train_robots), list(record.test_robots)
 
 
 def train_robots(recipe: Recipe) -> list[Robot]:
-    """The recipe's training robots (a repeated robot is an error: use ``env.copies``)."""
-    if not recipe.env.robots:
-        raise RecipeError("env.robots is empty: name at least one robot to train on")
-    robots = run_robots(recipe)[0]
-    check_benchmark(recipe, robots, "env.robots")
-    check_apart(recipe, robots)
-    return robots
-
-
-def check_apart(recipe: Recipe, robots: Sequence[Robot]) -> None:
-    """A RecipeError naming the training robots (``robots``) that ``env.test_robots`` lists too:
-    a zero-shot robot is never trained on. A fine-tune (``init_from``) onto test robots is told
-    the test list without them."""
-    if not recipe.env.test_robots:
-        return
-    tests = run_robots(recipe)[1]
-    trained = {robot_identity(r) for r in robots}
-    tested = {robot_identity(r) for r in tests}
-    both = [r for r in robots if robot_identity(r) in tested]
-    if not both:
-        return
-    names = ", ".join(r.name for r in both)
-    if recipe.init_from:
-        rest = [r for r in tests if robot_identity(r) not in trained]
-        kept = json.dumps([r.name if robot_catalogue(r.name) else r.source for r in rest])
-        raise RecipeError(
-            f"env.robots: fine-tuning on {names}, which env.test_robots lists (a zero-shot "
-            f"robot is never trained on); drop {'it' if len(both) == 1 else 'them'} from the "
-            f"test list: 'env.test_robots={kept}'"
-        )
-    raise RecipeError(
-        f"env.robots and env.test_robots both list {names}: a zero-shot (test) robot is never "
-        "trained on; drop each from one of the lists"
-    )
-
-
-def check_benchmark(recipe: Recipe, robots: Sequence[Robot], where: str) -> list[Robot]:
-    """``robots`` if the recipe's benchmark can step them all; else a RecipeError naming the
-    first robot of another benchmark (``where``: what named them, for the message)."""
-    bench = benchmark_of(recipe)
-    for robot in robots:
-        if robot.catalogue != bench.catalogue:
-            raise RecipeError(
-                f"{where}: robot {robot.name!r} is a {robot.catalogue} robot, but this is a "
-                f"{bench.name} run (env.benchmark={bench.name}); use a recipe of its benchmark"
-            )
-    return list(robots)
+    """The recipe's training robots (given, of its benchmark, apart from its test robots)."""
+    return list(resolve_run(recipe).train_robots)
 
 
 def make_env(

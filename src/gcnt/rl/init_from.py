@@ -25,12 +25,12 @@ keeps it.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 from pathlib import Path
 from typing import Any
 
 from gcnt.recipes import Recipe, RecipeError
+from gcnt.resolved_run import network_sizes, resolve_run
 from gcnt.rl.algorithm import Algorithm
 from gcnt.rl.run_dir import RunDir
 from gcnt.suggest import existing_path
@@ -120,28 +120,13 @@ def check_compatible(recipe: Recipe, source: Recipe, where: str = "init_from") -
     ):
         if theirs != ours:
             raise RecipeError(f"{where}: that run has {key}={theirs}, this recipe has {key}={ours}")
-    theirs, ours = network_sizes(source), network_sizes(recipe)
+    theirs, ours = network_sizes(source), resolve_run(recipe).network
     for key in ours:
         if theirs.get(key) != ours[key]:
             raise RecipeError(
                 f"{where}: that run's network has {key}={theirs.get(key)}, this recipe's has "
                 f"{key}={ours[key]} (network.preset / network.kwargs)"
             )
-
-
-def network_sizes(recipe: Recipe) -> dict[str, Any]:
-    """The recipe's network configuration with its preset and overrides resolved, as the
-    network builder reads it."""
-    from gcnt.nn.registry import make_config
-    from gcnt.rl.factories import benchmark_of
-
-    net = recipe.network
-    preset = net.preset or benchmark_of(recipe).preset
-    try:
-        config = make_config(net.name, preset, **net.sizes())
-    except (ValueError, TypeError) as e:
-        raise RecipeError(f"network: {e}") from None
-    return dataclasses.asdict(config)
 
 
 def file_sha256(path: Path) -> str:

@@ -21,7 +21,7 @@ import signal
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
@@ -39,11 +39,12 @@ from gcnt import provenance
 from gcnt.files import KiB, read_text
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
+from gcnt.resolved_run import RunRecord, network_sizes, resolve_run
 from gcnt.rl import init_from, stop
 from gcnt.rl.accelerate import collector_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
-from gcnt.rl.factories import benchmark_of, run_robots, train_robots
+from gcnt.rl.factories import benchmark_of
 from gcnt.rl.run_dir import (
     CHECKPOINT_MISFITS,
     CheckpointError,
@@ -208,25 +209,21 @@ def _end_workers(collector: Any) -> None:
 def check_network(recipe: Recipe) -> None:
     """The recipe's network name, preset and sizes (``network.kwargs``, or the method's entry of
     ``network.method_kwargs``): a RecipeError naming them."""
-    from gcnt.nn.registry import make_config
-
-    net = recipe.network
-    try:
-        make_config(net.name, net.preset or benchmark_of(recipe).preset, **net.sizes())
-    except (ValueError, TypeError) as e:
-        raise RecipeError(f"network: {e}") from None
+    network_sizes(recipe)
 
 
-def check_recipe(recipe: Recipe) -> None:
-    """What a run of ``recipe`` would refuse before building anything: the logger, the network
-    (name, preset, sizes), the benchmark and world, the algorithm, the training and test robots
-    (each known, of the benchmark, the two lists apart) and the robots evaluated at the end. A
-    RecipeError (or a robot error) naming the culprit; ``gcnt sweep`` checks every run so."""
+def check_recipe(recipe: Recipe, *, lookups: dict | None = None) -> RunRecord:
+    """What a run of ``recipe`` would refuse before building anything: the logger, the run's
+    record (:func:`gcnt.resolved_run.resolve_run`: the network's name, preset and sizes, the
+    benchmark and world, the training and test robots, each known, of the benchmark, the two
+    lists apart), the algorithm and the robots evaluated at the end. A RecipeError (or a robot
+    error) naming the culprit; ``gcnt sweep`` checks every run so (``lookups``: the robot specs
+    it looked up already). Returns the record."""
     check_logger(recipe)
-    check_network(recipe)
+    record = resolve_run(recipe, lookups=lookups)
     get_algorithm(recipe.algo)
-    train_robots(recipe)
     check_eval_robots(recipe, _eval_specs(recipe))  # evaluated at the end: check them first
+    return record
 
 
 class TrainStats:
@@ -277,18 +274,21 @@ class Prepared:
     robots: list[Robot]
     env: EnvBase
     algo: Algorithm
+    #: the run's record, as ``recipe.resolved`` holds it
+    record: RunRecord
 
 
-def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
+def prepare(recipe: Recipe, *, resume: bool = False, lookups: dict | None = None) -> Prepared:
     """Seed, then build the robots, the benchmark's env and the algorithm (bad input fails
     here, before anything is written); the derived sizes go to ``recipe.resolved``. A new run
     with ``init_from`` takes over that run's trained networks here (``gcnt.rl.init_from``);
-    ``resume``: the run continues its own checkpoint instead."""
-    check_recipe(recipe)
+    ``resume``: the run continues its own checkpoint instead. ``lookups``: robot specs this
+    command looked up already (the seeds of one ``--seeds`` command share them)."""
+    record = check_recipe(recipe, lookups=lookups)
     if recipe.compile.torch_threads is not None:
         torch.set_num_threads(recipe.compile.torch_threads)
     seed_everything(recipe.seed)
-    robots = train_robots(recipe)
+    robots = list(record.train_robots)
     algo_cls = get_algorithm(recipe.algo)
     env = algo_cls.make_train_env(recipe, robots)
     try:
@@ -301,17 +301,8 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
                 f"network {recipe.network.name!r} on {benchmark_of(recipe).name} robots: {e}"
             ) from None
         raise
-    recipe.resolved = {**algo.resolved(), **start, **run_record(robots, run_robots(recipe)[1])}
-    return Prepared(robots, env, algo)
-
-
-def run_record(robots: Sequence[Robot], tests: Sequence[Robot]) -> dict[str, Any]:
-    """What the run records of its robots and plugins (:mod:`gcnt.run_record`), in
-    ``resolved``."""
-    from gcnt import plugins
-    from gcnt.run_record import PLUGINS_KEY, ROBOTS_KEY, robot_record
-
-    return {ROBOTS_KEY: robot_record(robots, tests), PLUGINS_KEY: plugins.identities()}
+    recipe.resolved = {**algo.resolved(), **start, **record.resolved()}
+    return Prepared(robots, env, algo, record)
 
 
 def train(
@@ -366,7 +357,8 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
     env_steps = resume_checkpoint(run, algo) if resume else 0
     start, total = env_steps, recipe.collector.total_frames
     if not resume or env_steps < total:  # a finished run's recipe is left as it was
-        store_robots(run.path, [*robots, *run_robots(recipe)[1]])  # before the record names them
+        # before the record names them
+        store_robots(run.path, [*robots, *prepared.record.test_robots])
         run.save_recipe(recipe)  # after the checkpoint was found to fit it
     if resume and env_steps < total:  # the code now running continues the run: recorded
         run.record_session()

@@ -124,6 +124,7 @@ def expand(
     specs: list[RunSpec] = []
     seen: dict[str, str] = {}
     missing: set[str] = set()  # fine-tunes' sources not made yet, each said once
+    lookups: dict = {}  # robot specs looked up for the runs' checks: each spec once per sweep
     for recipe_path in recipes:
         recipe_path = Path(recipe_path)
         if not recipe_path.is_file():
@@ -147,7 +148,7 @@ def expand(
                         r = recipe_from_dict(data, given, source)
                     except RecipeError as e:
                         raise SweepError(str(e)) from None
-                    _check_run(r, source, m, evals)
+                    _check_run(r, source, m, evals, lookups)
                     _fine_tune_task(r, missing)
                     spec = _spec(recipe_path, r, m, robot, given, sweep_dir, group, seen)
                     spec.evals, spec.eval_episodes = list(evals), eval_episodes
@@ -158,14 +159,17 @@ def expand(
     return specs
 
 
-def _check_run(r: Recipe, source: str, method: str, evals: Sequence[str]) -> None:
+def _check_run(
+    r: Recipe, source: str, method: str, evals: Sequence[str], lookups: dict | None = None
+) -> None:
     """What the run of ``r`` (method ``method`` of recipe ``source``) would refuse when it
-    starts, and the robots its evaluations ``evals`` name: a SweepError naming the recipe."""
+    starts, and the robots its evaluations ``evals`` name: a SweepError naming the recipe
+    (``lookups``: the robot specs the sweep looked up already, for every run's check)."""
     from gcnt.rl.evaluate import check_eval_robots
     from gcnt.rl.loop import check_recipe
 
     try:
-        check_recipe(r)
+        check_recipe(r, lookups=lookups)
         for spec in evals:
             if spec == "test" and not r.env.test_robots:
                 raise ValueError("--eval test: the recipe has no test robots (env.test_robots)")

@@ -90,10 +90,11 @@ def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
     directories; returns them."""
     rng = SeedRNG(len(recipes))
     prepared: list[Prepared] = []
+    lookups: dict = {}  # the seeds' robot specs, each looked up once
     try:
         # each seed is built as its own run would be (seeded globally, then its state kept)
         for i, recipe in enumerate(recipes):
-            prepared.append(prepare(recipe))
+            prepared.append(prepare(recipe, lookups=lookups))
             rng.capture(i)
         try:
             stacked = StackedTD3([p.algo for p in prepared], rng)
