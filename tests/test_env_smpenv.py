@@ -404,3 +404,27 @@ def test_thread_count_tuning():
         env._times[k].append(fast[k])
     assert env._use == 1
     assert SMPEnv(robots("walker_7_main") * 4, num_threads=2)._threads_now() == 2  # fixed
+
+
+def test_static_outputs_are_shared_and_never_rewritten():
+    """The static entries are built once per layout (no copy per step); a robot change makes new
+    tensors, so an output kept from before it still holds the old robot's graph."""
+    pool = robots("walker_2_main", "hopper_5")
+    env = SMPEnv([pool[0], pool[0]], max_limbs=5, seed=0, num_threads=1)
+    draws = iter([[1, 0], [1]])
+    env.use_robot_pool(pool, lambda rows: np.array(next(draws)[: len(rows)]))
+    first = env.reset()
+    action = torch.zeros(env.action_spec["limbs", "action"].shape)
+    out = env.step(first.set(("limbs", "action"), action))["next"]
+    static = [("limbs", "mask"), ("limbs", "type"), ("graph", "adj"), ("graph", "dist"), "morph_id"]
+    for key in static:  # the same tensors, step after step
+        assert out.get(key) is first.get(key)
+    kept = first.clone()
+    reset = torch.tensor([False, True])
+    after = env.reset(first.empty().set("_reset", reset))
+    assert first["morph_id"].tolist() == [1, 0]
+    assert after["morph_id"].tolist() == [1, 1]
+    for key in static:
+        assert after.get(key) is not first.get(key)
+        assert torch.equal(first.get(key), kept.get(key))  # the old output is unchanged
+    assert not torch.equal(after["graph", "adj"][1], first["graph", "adj"][1])

@@ -7,6 +7,13 @@ partial resets, blow-ups, seeding, specs, the output TensorDict, rendering hooks
 written out once in :mod:`gcnt.keys`. Actions on slots without a motor (torso, padding, missing
 joints) are ignored, even NaN. The time limit is a truncation, not a termination.
 
+Output tensors: the per-step entries (observation, root outputs, reward, flags) are new tensors
+every step; the static ones (``morph_id``, the limbs' mask, type, action mask and context, the
+graph) are built once per robot layout and shared by every output until a sub-env changes robot,
+when new ones replace them. The env never writes into a tensor it has emitted, so a collector or
+replay buffer may keep any output as it is; consumers must not write into the static ones in
+place.
+
 Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel`` unless the rules
 edit the model per episode); the physics threads and their tuning are in
 :mod:`gcnt.envs.stepper`. Nothing loops over limbs in Python.
@@ -409,7 +416,7 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
     def _output(
         self, reward: np.ndarray | None, terminated: np.ndarray, truncated: np.ndarray
     ) -> TensorDictBase:
-        n, dev, st = self.batch_size[0], self.device, self._static
+        n, dev = self.batch_size[0], self.device
         # ``_new_unsafe`` skips the per-value checks of the public constructor (a third of the
         # cost of building the output): the keys, shapes and devices below are fixed and match the
         # specs, which check_env_specs verifies in the tests.
@@ -426,14 +433,11 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
                 x.to(dev, non_blocking=True) for x in (obs, term, trunc, done)
             )
             extra = {key: v.to(dev, non_blocking=True) for key, v in extra.items()}
-        limbs = {"obs": obs}
-        graph = {}
-        for (group, key), v in st.items():
-            (limbs if group == "limbs" else graph)[key] = v.clone()
+        limbs = {"obs": obs, **self._static_limbs}
         out = {
-            K.MORPH_ID: self._morph_id_dev.clone(),
+            K.MORPH_ID: self._morph_id_dev,
             "limbs": new(limbs, batch_size=self._limb_batch, device=dev),
-            "graph": new(graph, batch_size=self.batch_size, device=dev),
+            "graph": new(dict(self._static_graph), batch_size=self.batch_size, device=dev),
             **extra,
             "terminated": term,
             "truncated": trunc,
@@ -676,8 +680,12 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
         self._ctrl_index = (np.concatenate(rows), np.concatenate(limbs), np.concatenate(slots))
         self.dt = np.array([float(s.model.opt.timestep) * self.frame_skip for s in sims])
         local = self.local_ids
+        # Built here only, never written afterwards: every output shares these tensors (a new
+        # layout makes new ones, so earlier outputs keep the values they were emitted with).
         self._static = {key: self.table[key][local].to(self.device) for key in self._static}
-        self._morph_id_dev = self.morph_ids.to(self.device)
+        self._static_limbs = {k: v for (g, k), v in self._static.items() if g == "limbs"}
+        self._static_graph = {k: v for (g, k), v in self._static.items() if g == "graph"}
+        self._morph_id_dev = self.morph_ids.to(self.device, copy=True)
         self._no_motor = ~self.table[K.ACTION_MASK][local].numpy()
 
     # ------------------------------------------------------------------ public helpers
