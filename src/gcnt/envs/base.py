@@ -519,7 +519,9 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
                 rows = np.nonzero(bad.any((1, 2)))[0]
                 names = ", ".join(f"{self.robots[i].name!r} (sub-env {i})" for i in rows)
                 raise ValueError(f"{self.name}: non-finite (NaN/inf) action for robot {names}")
-        out = np.clip(a, -1.0, 1.0, dtype=np.float64)
+        out = a.astype(np.float64)
+        np.minimum(out, 1.0, out=out)  # the clip as two ufuncs (np.clip's wrapper costs more)
+        np.maximum(out, -1.0, out=out)
         out[self._no_motor] = 0.0  # torso, padding, missing joints (even NaN there is ignored)
         return out
 
@@ -557,9 +559,15 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
             terminated[keep] = self._last_terminated[keep]
             truncated[keep] = self._last_truncated[keep]
             self._elapsed[keep] -= 1
-        self._last_terminated = terminated
-        self._last_truncated = truncated
+        # in place: an attribute set on an env goes through torch's and torchrl's __setattr__
+        self._last_terminated[:] = terminated
+        self._last_truncated[:] = truncated
         return self._output(reward, terminated, truncated)
+
+    def _step_proc_data(self, next_tensordict_out: TensorDictBase) -> TensorDictBase:
+        """As TorchRL's, which reshapes the reward and fills in missing done keys: :meth:`_step`
+        already emits the reward and every done key in their specs' shapes and dtypes."""
+        return next_tensordict_out
 
     def _report_blowups(self, blown: np.ndarray) -> None:
         """One PhysicsBlowupWarning per sub-env and episode."""
