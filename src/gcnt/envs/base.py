@@ -7,12 +7,10 @@ partial resets, blow-ups, seeding, specs, the output TensorDict, rendering hooks
 written out once in :mod:`gcnt.keys`. Actions on slots without a motor (torso, padding, missing
 joints) are ignored, even NaN. The time limit is a truncation, not a termination.
 
-Output tensors: the per-step entries (observation, root outputs, reward, flags) are new tensors
-every step; the static ones (``morph_id``, the limbs' mask, type, action mask and context, the
-graph) are built once per robot layout and shared by every output until a sub-env changes robot,
-when new ones replace them. The env never writes into a tensor it has emitted, so a collector or
-replay buffer may keep any output as it is; consumers must not write into the static ones in
-place.
+Output tensors: every output holds tensors of its own, the static entries (``morph_id``, the
+limbs' mask, type, action mask and context, the graph) included, copied from the layout's each
+time: consumers write into outputs in place (TorchRL's collector zeroes its carrier, the last
+output, when it resets), which must not reach the next output.
 
 Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel`` unless the rules
 edit the model per episode); the physics threads and their tuning are in
@@ -433,11 +431,17 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
                 x.to(dev, non_blocking=True) for x in (obs, term, trunc, done)
             )
             extra = {key: v.to(dev, non_blocking=True) for key, v in extra.items()}
-        limbs = {"obs": obs, **self._static_limbs}
+        limbs = {"obs": obs}
+        for key, v in self._static_limbs.items():
+            limbs[key] = v.clone()
         out = {
-            K.MORPH_ID: self._morph_id_dev,
+            K.MORPH_ID: self._morph_id_dev.clone(),
             "limbs": new(limbs, batch_size=self._limb_batch, device=dev),
-            "graph": new(dict(self._static_graph), batch_size=self.batch_size, device=dev),
+            "graph": new(
+                {key: v.clone() for key, v in self._static_graph.items()},
+                batch_size=self.batch_size,
+                device=dev,
+            ),
             **extra,
             "terminated": term,
             "truncated": trunc,
@@ -688,12 +692,11 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
         self._ctrl_index = (np.concatenate(rows), np.concatenate(limbs), np.concatenate(slots))
         self.dt = np.array([float(s.model.opt.timestep) * self.frame_skip for s in sims])
         local = self.local_ids
-        # Built here only, never written afterwards: every output shares these tensors (a new
-        # layout makes new ones, so earlier outputs keep the values they were emitted with).
+        # Every output gets copies of these (see the module doc: consumers write into outputs)
         self._static = {key: self.table[key][local].to(self.device) for key in self._static}
         self._static_limbs = {k: v for (g, k), v in self._static.items() if g == "limbs"}
         self._static_graph = {k: v for (g, k), v in self._static.items() if g == "graph"}
-        self._morph_id_dev = self.morph_ids.to(self.device, copy=True)
+        self._morph_id_dev = self.morph_ids.to(self.device)
         self._no_motor = ~self.table[K.ACTION_MASK][local].numpy()
 
     # ------------------------------------------------------------------ public helpers
