@@ -267,7 +267,7 @@ def test_a_key_an_older_recipe_lacks_counts_as_its_default(tmp_path):
             tmp_path / "extra",
             seed=3,
             network={"method_kwargs": {"smp": {"hidden": 7}}},
-            ppo={"workers": 8, "collector": "single"},
+            ppo={"workers": 8, "worker_envs": 32, "collector": "single"},
         )
     )
     assert extra.fingerprint == new.fingerprint

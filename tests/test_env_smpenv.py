@@ -404,3 +404,25 @@ def test_thread_count_tuning():
         env._times[k].append(fast[k])
     assert env._use == 1
     assert SMPEnv(robots("walker_7_main") * 4, num_threads=2)._threads_now() == 2  # fixed
+
+
+def test_an_output_written_in_place_leaves_the_next_ones_alone():
+    """TorchRL's collector zeroes its carrier (the env's last output) in place when it resets:
+    no tensor of an output, the static entries included, may be shared with a later one."""
+    env = SMPEnv(robots("walker_2_main", "hopper_5"), max_limbs=5, seed=0, num_threads=1)
+    first = env.reset()
+    kept = first.clone()
+    first.zero_()
+    action = torch.zeros(env.action_spec["limbs", "action"].shape)
+    out = env.step(kept.clone().set(("limbs", "action"), action))["next"]
+    for key in [
+        ("limbs", "mask"),
+        ("limbs", "type"),
+        ("graph", "adj"),
+        ("graph", "dist"),
+        "morph_id",
+    ]:
+        assert torch.equal(out.get(key), kept.get(key)), key
+    again = env.reset()
+    again.zero_()
+    assert torch.equal(env.observe()["graph", "adj"], kept["graph", "adj"])

@@ -219,3 +219,36 @@ def test_sigterm_while_a_worker_is_stopped_still_checkpoints(tmp_path: Path):
     assert proc.returncode == EXIT_STOPPED, stderr[-3000:]
     assert "stopped by SIGTERM: checkpoint of" in stderr and "Traceback" not in stderr
     assert RunDir(run).has_checkpoint()
+
+
+def test_worker_envs_must_split_the_iterations_frames(tmp_path: Path):
+    with pytest.raises(ValueError, match="must be a multiple of workers x worker_envs"):
+        tiny_recipe(tmp_path / "r", collector="multi", workers=2, worker_envs=3)
+
+
+@pytest.mark.slow
+def test_each_worker_steps_worker_envs_envs(tmp_path: Path):
+    """ppo.worker_envs: each worker steps that many envs (here the whole num_envs), fewer steps
+    each; an iteration holds the same frames, as workers x worker_envs trajectories."""
+    from gcnt.rl.loop import train
+
+    recipe = tiny_recipe(tmp_path / "w", collector="multi", workers=2, worker_envs=4)
+    recipe.collector.total_frames = 80  # one iteration: 2 workers x 4 envs x 10 steps
+    run = RunDir(recipe.run_dir)
+    run.create(recipe)
+    seen = []
+    from gcnt.rl.ppo import learner as ppo_learner
+
+    original = ppo_learner.PPOLearner.learn
+
+    def spy(self, data):
+        seen.append(tuple(data.shape))
+        return original(self, data)
+
+    ppo_learner.PPOLearner.learn = spy
+    try:
+        train(recipe, run)
+    finally:
+        ppo_learner.PPOLearner.learn = original
+    assert seen == [(8, 10)]
+    assert run.read_metrics()

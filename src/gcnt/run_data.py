@@ -415,6 +415,7 @@ class Run:
                     del flat[key]
         if _get(self.recipe, "ppo", "collector", default="single") != "multi":
             flat.pop("ppo.workers", None)
+            flat.pop("ppo.worker_envs", None)
         if self.single_robot is not None:
             flat.pop("env.robots", None)
         source = self._init_source()

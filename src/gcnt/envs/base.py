@@ -7,6 +7,11 @@ partial resets, blow-ups, seeding, specs, the output TensorDict, rendering hooks
 written out once in :mod:`gcnt.keys`. Actions on slots without a motor (torso, padding, missing
 joints) are ignored, even NaN. The time limit is a truncation, not a termination.
 
+Output tensors: every output holds tensors of its own, the static entries (``morph_id``, the
+limbs' mask, type, action mask and context, the graph) included, copied from the layout's each
+time: consumers write into outputs in place (TorchRL's collector zeroes its carrier, the last
+output, when it resets), which must not reach the next output.
+
 Speed: every sub-env owns an ``MjData`` (copies of a robot share one ``MjModel`` unless the rules
 edit the model per episode); the physics threads and their tuning are in
 :mod:`gcnt.envs.stepper`. Nothing loops over limbs in Python.
@@ -409,7 +414,7 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
     def _output(
         self, reward: np.ndarray | None, terminated: np.ndarray, truncated: np.ndarray
     ) -> TensorDictBase:
-        n, dev, st = self.batch_size[0], self.device, self._static
+        n, dev = self.batch_size[0], self.device
         # ``_new_unsafe`` skips the per-value checks of the public constructor (a third of the
         # cost of building the output): the keys, shapes and devices below are fixed and match the
         # specs, which check_env_specs verifies in the tests.
@@ -427,13 +432,16 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
             )
             extra = {key: v.to(dev, non_blocking=True) for key, v in extra.items()}
         limbs = {"obs": obs}
-        graph = {}
-        for (group, key), v in st.items():
-            (limbs if group == "limbs" else graph)[key] = v.clone()
+        for key, v in self._static_limbs.items():
+            limbs[key] = v.clone()
         out = {
             K.MORPH_ID: self._morph_id_dev.clone(),
             "limbs": new(limbs, batch_size=self._limb_batch, device=dev),
-            "graph": new(graph, batch_size=self.batch_size, device=dev),
+            "graph": new(
+                {key: v.clone() for key, v in self._static_graph.items()},
+                batch_size=self.batch_size,
+                device=dev,
+            ),
             **extra,
             "terminated": term,
             "truncated": trunc,
@@ -515,7 +523,9 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
                 rows = np.nonzero(bad.any((1, 2)))[0]
                 names = ", ".join(f"{self.robots[i].name!r} (sub-env {i})" for i in rows)
                 raise ValueError(f"{self.name}: non-finite (NaN/inf) action for robot {names}")
-        out = np.clip(a, -1.0, 1.0, dtype=np.float64)
+        out = a.astype(np.float64)
+        np.minimum(out, 1.0, out=out)  # the clip as two ufuncs (np.clip's wrapper costs more)
+        np.maximum(out, -1.0, out=out)
         out[self._no_motor] = 0.0  # torso, padding, missing joints (even NaN there is ignored)
         return out
 
@@ -553,9 +563,15 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
             terminated[keep] = self._last_terminated[keep]
             truncated[keep] = self._last_truncated[keep]
             self._elapsed[keep] -= 1
-        self._last_terminated = terminated
-        self._last_truncated = truncated
+        # in place: an attribute set on an env goes through torch's and torchrl's __setattr__
+        self._last_terminated[:] = terminated
+        self._last_truncated[:] = truncated
         return self._output(reward, terminated, truncated)
+
+    def _step_proc_data(self, next_tensordict_out: TensorDictBase) -> TensorDictBase:
+        """As TorchRL's, which reshapes the reward and fills in missing done keys: :meth:`_step`
+        already emits the reward and every done key in their specs' shapes and dtypes."""
+        return next_tensordict_out
 
     def _report_blowups(self, blown: np.ndarray) -> None:
         """One PhysicsBlowupWarning per sub-env and episode."""
@@ -676,7 +692,10 @@ class BatchedMujocoEnv(ThreadedPhysics, EnvBase):
         self._ctrl_index = (np.concatenate(rows), np.concatenate(limbs), np.concatenate(slots))
         self.dt = np.array([float(s.model.opt.timestep) * self.frame_skip for s in sims])
         local = self.local_ids
+        # Every output gets copies of these (see the module doc: consumers write into outputs)
         self._static = {key: self.table[key][local].to(self.device) for key in self._static}
+        self._static_limbs = {k: v for (g, k), v in self._static.items() if g == "limbs"}
+        self._static_graph = {k: v for (g, k), v in self._static.items() if g == "graph"}
         self._morph_id_dev = self.morph_ids.to(self.device)
         self._no_motor = ~self.table[K.ACTION_MASK][local].numpy()
 

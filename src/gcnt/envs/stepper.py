@@ -261,4 +261,5 @@ class ThreadedPhysics:
         # One vectorised featurisation of all sub-envs (its cost is per numpy call, not per row).
         self._featurize()
         cost = self._cost
-        self._order = sorted(range(len(cost)), key=cost.__getitem__, reverse=True)
+        # in place (no env __setattr__); the step's queue is done with the list
+        self._order[:] = sorted(range(len(cost)), key=cost.__getitem__, reverse=True)

@@ -20,10 +20,18 @@ class PPOConfig:
     #: lockstep steps per environment and iteration (the paper: 2560; 32 x 2560 = 81920 frames)
     steps_per_env: int = 2560
     #: "single": one process steps all envs (threads for the physics); "multi": torchrl's
-    #: MultiSyncCollector over ``workers`` processes, each stepping num_envs / workers envs
+    #: MultiSyncCollector over ``workers`` processes, each stepping num_envs / workers envs (or
+    #: worker_envs)
     collector: Literal["single", "multi"] = "single"
     #: processes of the "multi" collector (must divide num_envs)
     workers: int = 2
+    #: envs each "multi" worker steps (0: num_envs / workers). A step's fixed costs (the policy
+    #: call, TorchRL's step, the featuriser) are per batched step, so a worker with few envs pays
+    #: them for few frames: set it to num_envs (or >= 32) to keep the single process's batch per
+    #: worker. An iteration still collects num_envs x steps_per_env frames, as workers x
+    #: worker_envs envs of num_envs x steps_per_env / (workers x worker_envs) steps each (more,
+    #: shorter trajectories; the run then repeats for its seed, workers and worker_envs)
+    worker_envs: int = 0
     #: "sampled": a robot per episode, drawn against "the rich get richer" (uniform first, then
     #: p_i proportional to 1000 / EMA of robot i's episode length); "fixed": num_envs / robots
     #: copies of each robot (num_envs must be a multiple of the robot count)
@@ -114,7 +122,14 @@ class PPOConfig:
             "minibatch_size",
             "ema_warmup_episodes",
         )
-        check_range(self, ">= 0", "uniform_iterations", "warmup_iterations")
+        check_range(self, ">= 0", "uniform_iterations", "warmup_iterations", "worker_envs")
+        if self.collector == "multi" and self.worker_envs:
+            envs = self.workers * self.worker_envs
+            if (self.num_envs * self.steps_per_env) % envs:
+                raise ValueError(
+                    f"worker_envs: num_envs x steps_per_env ({self.num_envs * self.steps_per_env})"
+                    f" must be a multiple of workers x worker_envs ({envs})"
+                )
         check_range(
             self, "positive finite", "lr", "adam_eps", "init_std", "obs_clip", "reward_clip"
         )

@@ -461,9 +461,24 @@ class PPO(Algorithm):
             alpha=o.ema_alpha,
             probs=None if self.draw is None else self.draw.probs,  # the env reads these
         )
-        self.scaler = RewardScaler(o.num_envs, o.gamma, o.reward_clip) if o.reward_scaling else None
+        self.scaler = (
+            RewardScaler(self.collected_envs, o.gamma, o.reward_clip) if o.reward_scaling else None
+        )
         self._extras: dict[str, float] = {}
         self._t_end: float | None = None
+
+    @property
+    def worker_envs(self) -> int:
+        """Envs per ``multi`` collector worker (``ppo.worker_envs``, or num_envs / workers)."""
+        o: PPOConfig = self.config
+        return o.worker_envs or o.num_envs // o.workers
+
+    @property
+    def collected_envs(self) -> int:
+        """The envs whose trajectories an iteration's batch holds: num_envs, or with the
+        ``multi`` collector workers x :attr:`worker_envs` (the workers' batches stacked)."""
+        o: PPOConfig = self.config
+        return o.workers * self.worker_envs if o.collector == "multi" else o.num_envs
 
     @property
     def updates(self) -> int:  # the learner counts them
@@ -482,7 +497,7 @@ class PPO(Algorithm):
         o: PPOConfig = self.config
         makers = None
         if o.collector == "multi":
-            per = o.num_envs // o.workers
+            per = self.worker_envs
             sampled = o.robot_sampling == "sampled"
             makers = [
                 functools.partial(
@@ -506,7 +521,7 @@ class PPO(Algorithm):
             )
             if not sampled and per % len(self.robots):
                 raise RecipeError(
-                    f"ppo.collector: multi with fixed robots needs num_envs / workers ({per}) to "
+                    f"ppo.collector: multi with fixed robots needs its envs per worker ({per}) to "
                     f"be a multiple of the {len(self.robots)} robots"
                 )
             self._statistics_from_a_reset()
@@ -527,7 +542,8 @@ class PPO(Algorithm):
         o: PPOConfig = self.config
         t0 = time.perf_counter()
         collect_s = t0 - self._t_end if self._t_end is not None else float("nan")
-        data = data.reshape(o.num_envs, -1)  # [N, T]; a multi-process collector stacks workers
+        # [N, T]; a multi-process collector stacks its workers' envs
+        data = data.reshape(self.collected_envs, -1)
         robots, lengths = finished_episodes(data)
         self.sampler.add_episodes(robots, lengths)
         if self.scaler is not None:
@@ -563,6 +579,7 @@ class PPO(Algorithm):
         o: PPOConfig = self.config
         return {
             "num_envs": o.num_envs,
+            "collected_envs": self.collected_envs,
             "frames_per_batch": self.frames_per_batch,
             "iterations": self.iterations,
             "minibatches_per_epoch": self.minibatches_per_epoch,
