@@ -68,9 +68,10 @@ def compile_step(
     fn: Callable, config: CompileConfig, *, fullgraph: bool = False, name: str | None = None
 ) -> Callable:
     """``torch.compile(fn)`` when ``compile.compile`` (with ``compile.mode``; ``fullgraph``: a
-    graph break is an error), else ``fn``. Compiled code is cached in
+    graph break is an error), else ``fn`` (``compile.compile`` still ``auto`` here is eager: an
+    algorithm with a rule resolves it first, :func:`choose_compile`). Compiled code is cached in
     :func:`inductor_cache_dir`; the first call's time is logged."""
-    if not config.compile:
+    if config.compile is not True:
         return fn
     kwargs: dict[str, Any] = {"fullgraph": fullgraph}
     if config.mode and config.mode != "default":
@@ -79,6 +80,34 @@ def compile_step(
     cache.mkdir(parents=True, exist_ok=True)
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(cache.resolve())
     return _Timed(torch.compile(fn, **kwargs), name or getattr(fn, "__name__", "step"))
+
+
+def choose_compile(
+    config: CompileConfig,
+    device: str | torch.device,
+    planned_updates: float,
+    break_even_updates: float,
+) -> tuple[bool, str]:
+    """``compile.compile`` for a run, and why: a bool as the recipe gives it; ``auto``: compiled
+    on a CPU when the run plans at least ``break_even_updates`` updates (the updates whose
+    saving repays the compile time, measured by the algorithm), eager below that, on other
+    devices (not measured) and where ``compile.twin_threads=true`` asks for the eager
+    two-thread critics."""
+    if config.compile is not True and config.compile is not False:
+        if config.twin_threads:
+            return False, "auto: eager, as compile.twin_threads=true runs the critics eagerly"
+        if torch.device(device).type != "cpu":
+            return False, f"auto: eager on {device} (the break-even was measured on CPUs)"
+        if planned_updates >= break_even_updates:
+            return True, (
+                f"auto: compiled, the run plans {planned_updates:,.0f} updates, past the "
+                f"{break_even_updates:,.0f} that repay the compile time"
+            )
+        return False, (
+            f"auto: eager, the run plans {planned_updates:,.0f} updates, fewer than the "
+            f"{break_even_updates:,.0f} that repay the compile time"
+        )
+    return bool(config.compile), f"{str(config.compile).lower()} (the recipe's)"
 
 
 def compile_seconds(*fns: Callable) -> float:
@@ -116,7 +145,7 @@ def owned(outputs: dict[str, torch.Tensor], config: CompileConfig) -> dict[str, 
     """A step's outputs that outlive the next step: cloned out of the CUDA graph trees' memory
     when ``compile.mode`` runs them there (a phase reads all its steps' losses at its end),
     ``outputs`` itself otherwise."""
-    if config.compile and config.mode in CUDAGRAPH_TREE_MODES:
+    if config.compile is True and config.mode in CUDAGRAPH_TREE_MODES:
         return {k: v.clone() for k, v in outputs.items()}
     return outputs
 

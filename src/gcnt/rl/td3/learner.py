@@ -45,6 +45,7 @@ Every stored environment step is counted, over all robots.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -66,6 +67,7 @@ from gcnt.rl.accelerate import (
     accelerate,
     autocast,
     begin_step,
+    choose_compile,
     compile_step,
     optimizer_kwargs,
     owned,
@@ -140,7 +142,7 @@ class TD3Learner:
         self.twin = make_pair_runner(
             self.accel.twin_threads if twin_threads is None else twin_threads,
             self.device,
-            compiled=self.accel.compile or self.accel.cudagraphs,
+            compiled=self.accel.compile is True or self.accel.cudagraphs,
             dropout=has_dropout(critics[0]),
             torch_threads=self.accel.torch_threads,
         )
@@ -399,6 +401,32 @@ class TD3Learner:
         self.updates = state["updates"]
 
 
+#: ``compile.compile: auto``'s break-even, in updates: the compile time of TD3's two loss
+#: forwards (first compile, cold inductor cache) over the seconds a compiled bare update saves
+#: against eager, per schedule; measured with ``gcnt.bench.td3.compiled_vs_eager`` at study 1's
+#: sizes (recipes/studies/walker.yaml: the smallest saving measured, so larger networks compile
+#: no later than they should) on a 2-core Xeon beside other jobs (docs/performance.md, issue 45)
+COMPILE_BREAK_EVEN = {"paper": 20_000.0, "mixed": 10_000.0}
+
+
+def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
+    """``recipe`` with ``compile.compile`` a bool (:func:`gcnt.rl.accelerate.choose_compile` for
+    ``auto``: the run's planned updates, :meth:`TD3Config.planned_updates`, against
+    :data:`COMPILE_BREAK_EVEN`; a copy, the recipe given is left as it is), and why."""
+    c: TD3Config = recipe.algo_config
+    compiled, why = choose_compile(
+        recipe.compile,
+        recipe.device,
+        c.planned_updates(recipe.collector.total_frames, num_robots),
+        COMPILE_BREAK_EVEN[c.schedule],
+    )
+    if compiled is recipe.compile.compile:
+        return recipe, why
+    run = copy.copy(recipe)
+    run.compile = dataclasses.replace(recipe.compile, compile=compiled)
+    return run, why
+
+
 def one_update_thread(recipe: Recipe) -> bool:
     """Whether a run's TD3 update takes 1 torch intra-op thread instead of torch's default (one
     per core): an eager update on a CPU with 2 to 4 usable cores and ``compile.torch_threads``
@@ -410,7 +438,7 @@ def one_update_thread(recipe: Recipe) -> bool:
     return (
         torch.device(recipe.device).type == "cpu"
         and recipe.compile.torch_threads is None
-        and not recipe.compile.compile
+        and recipe.compile.compile is not True
         and 2 <= usable_cpus() <= 4
     )
 
@@ -571,9 +599,12 @@ class TD3(Algorithm):
     name = "td3"
 
     def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:
+        n = len(robots)
+        # compile.compile: auto resolved for this run (the recipe given keeps "auto")
+        recipe, why = resolve_compile(recipe, n)
+        log.info("TD3 update compile.compile=%s", why)
         super().__init__(recipe, env, robots)
         c: TD3Config = self.config
-        n = len(self.robots)
         try:
             c.check_random_phase(recipe.collector.total_frames, n)
         except ValueError as e:
@@ -647,6 +678,7 @@ class TD3(Algorithm):
             "num_envs": int(self.env.batch_size[0]),
             "frames_per_batch": fpb,
             "init_random_frames": _whole_batches(self.random_frames, fpb),
+            "compile": self.recipe.compile.compile,
             "buffer_per_robot": rb.per_robot_capacity(
                 len(self.robots), c.buffer_size_per_robot, c.buffer_total_size
             ),
