@@ -109,3 +109,42 @@ def test_a_recorded_run_keeps_its_compile_reading(tmp_path):
         assert recipe.compile.compile is (section is True)
     # a recipe file without the key (not a recorded run) takes today's default
     assert recipe_from_dict({"env": {"robots": ["hopper_3"]}}).compile.compile == "auto"
+
+
+def test_matmul_precision_follows_the_probe(monkeypatch):
+    """``compile.matmul_precision: auto``: medium on a CPU whose products keep float32 accuracy
+    under it, highest where they would round to bfloat16 and off the CPU; a named one as named."""
+    from gcnt.rl import accelerate
+
+    auto = CompileConfig()
+    for keeps, chosen in ((True, "medium"), (False, "highest")):
+        monkeypatch.setattr(accelerate, "medium_keeps_float32", lambda k=keeps: k)
+        assert accelerate.choose_matmul_precision(auto, "cpu")[0] == chosen
+        assert accelerate.choose_matmul_precision(auto, "cuda:0")[0] == "highest"
+        named = CompileConfig(matmul_precision="high")
+        assert accelerate.choose_matmul_precision(named, "cpu")[0] == "high"
+    with pytest.raises(RecipeError, match="matmul_precision"):
+        load_recipe(QUICK, ["compile.matmul_precision=low"])
+
+
+def test_the_precision_probe_leaves_torch_as_it_was():
+    import torch
+
+    from gcnt.rl.accelerate import medium_keeps_float32
+
+    before = torch.get_float32_matmul_precision()
+    medium_keeps_float32.cache_clear()
+    assert isinstance(medium_keeps_float32(), bool)
+    assert torch.get_float32_matmul_precision() == before
+
+
+def test_a_run_records_what_it_chose(trained):
+    """A run keeps ``auto`` in its recipe and records the resolved choices: a tiny run stays
+    eager; its products' precision is the probe's."""
+    from gcnt.rl.accelerate import choose_matmul_precision
+    from gcnt.rl.run_dir import RunDir
+
+    recipe = RunDir(trained).load_recipe()
+    assert recipe.compile.compile == "auto" and recipe.compile.matmul_precision == "auto"
+    assert recipe.resolved["compile"] is False
+    assert recipe.resolved["matmul_precision"] == choose_matmul_precision(recipe.compile, "cpu")[0]

@@ -162,6 +162,12 @@ class CompileConfig:
     #: torch_threads is unset or 1
     twin_threads: bool | None = None
 
+    #: float32 matrix products (``torch.set_float32_matmul_precision``, set for the run and
+    #: recorded in ``resolved``): highest | high | medium, or auto (default): on a CPU, medium
+    #: (oneDNN's products) where a probe finds it keeps float32's accuracy, highest where it
+    #: rounds to bfloat16 (CPUs with AMX or AVX512-BF16); elsewhere highest
+    matmul_precision: Literal["auto", "highest", "high", "medium"] = "auto"
+
     #: switches that need a CUDA device
     CUDA_ONLY = ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs")
     #: what a recorded run whose compile section lacks a key ran with (the key's default changed)

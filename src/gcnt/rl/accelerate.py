@@ -20,6 +20,7 @@ returns its input unchanged.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import time
@@ -108,6 +109,42 @@ def choose_compile(
             f"{break_even_updates:,.0f} that repay the compile time"
         )
     return bool(config.compile), f"{str(config.compile).lower()} (the recipe's)"
+
+
+#: relative error of a float32 product above which "medium" is taken to round to bfloat16
+#: (float32: ~1e-6; bfloat16's 8-bit mantissa: ~1e-3)
+BF16_ERROR = 1e-4
+
+
+@functools.cache
+def medium_keeps_float32() -> bool:
+    """Whether ``set_float32_matmul_precision("medium")`` keeps float32's accuracy on this CPU:
+    a 256 x 256 x 256 product of fixed random matrices under it, against float64 (oneDNN rounds
+    the operands to bfloat16 where the CPU has AMX or AVX512-BF16). Torch's setting is restored
+    afterwards."""
+    before = torch.get_float32_matmul_precision()
+    gen = torch.Generator().manual_seed(0)
+    a, b = (torch.randn(256, 256, generator=gen) for _ in range(2))
+    exact = a.double() @ b.double()
+    try:
+        torch.set_float32_matmul_precision("medium")
+        error = ((a @ b).double() - exact).abs().max() / exact.abs().max()
+    finally:
+        torch.set_float32_matmul_precision(before)
+    return bool(error < BF16_ERROR)
+
+
+def choose_matmul_precision(config: CompileConfig, device: str | torch.device) -> tuple[str, str]:
+    """``compile.matmul_precision`` for a run, and why: as the recipe names it; ``auto``: on a CPU
+    "medium" where :func:`medium_keeps_float32`, "highest" where it would round to bfloat16;
+    "highest" on other devices (TF32 changes a GPU's float32 results)."""
+    if config.matmul_precision != "auto":
+        return config.matmul_precision, "the recipe's"
+    if torch.device(device).type != "cpu":
+        return "highest", f"auto: float32 products on {device}"
+    if medium_keeps_float32():
+        return "medium", "auto: this CPU's oneDNN products keep float32 accuracy"
+    return "highest", "auto: medium would round this CPU's products to bfloat16"
 
 
 def compile_seconds(*fns: Callable) -> float:

@@ -40,7 +40,7 @@ from gcnt.files import KiB, read_text
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl import init_from, stop
-from gcnt.rl.accelerate import collector_kwargs
+from gcnt.rl.accelerate import choose_matmul_precision, collector_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of, run_robots, train_robots
@@ -287,6 +287,9 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
     check_recipe(recipe)
     if recipe.compile.torch_threads is not None:
         torch.set_num_threads(recipe.compile.torch_threads)
+    precision, why = choose_matmul_precision(recipe.compile, recipe.device)
+    torch.set_float32_matmul_precision(precision)
+    log.info("float32 matrix products: %s (compile.matmul_precision: %s)", precision, why)
     seed_everything(recipe.seed)
     robots = train_robots(recipe)
     algo_cls = get_algorithm(recipe.algo)
@@ -301,7 +304,12 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
                 f"network {recipe.network.name!r} on {benchmark_of(recipe).name} robots: {e}"
             ) from None
         raise
-    recipe.resolved = {**algo.resolved(), **start, **run_record(robots, run_robots(recipe)[1])}
+    recipe.resolved = {
+        **algo.resolved(),
+        "matmul_precision": precision,
+        **start,
+        **run_record(robots, run_robots(recipe)[1]),
+    }
     return Prepared(robots, env, algo)
 
 
