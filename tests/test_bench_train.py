@@ -119,3 +119,17 @@ def test_matrix_products_of_a_linear_layer_and_their_flops():
     batched, _ = matrix_products(lambda: torch.bmm(torch.ones(3, 2, 5), torch.ones(3, 5, 7)))
     assert batched == {("bmm", (3, 2, 5), (3, 5, 7)): 1}
     assert product_flops("bmm", (3, 2, 5), (3, 5, 7)) == 2 * 3 * 2 * 5 * 7
+
+
+def test_the_compiled_line_and_the_shapes_peak(recipe_file, capsys, monkeypatch):
+    """``--compiled`` adds compiled ÷ eager for the bare update and the compile time (torch.compile
+    left out here: the line's making, not inductor, is under test); every schedule reports the
+    matmul rate at the update's own shapes."""
+    import torch
+
+    monkeypatch.setattr(torch, "compile", lambda fn, **kw: fn)
+    argv = ["bench-train", str(recipe_file), "--updates", "2", "--steps", "10", "--warmup", "8"]
+    assert gcnt([*argv, "--compiled"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("compiled ÷ eager bare update") == 2 and out.count("compile time") == 2
+    assert out.count("matmul rate at the update's own product shapes") == 2
