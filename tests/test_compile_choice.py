@@ -148,3 +148,22 @@ def test_a_run_records_what_it_chose(trained):
     assert recipe.compile.compile == "auto" and recipe.compile.matmul_precision == "auto"
     assert recipe.resolved["compile"] is False
     assert recipe.resolved["matmul_precision"] == choose_matmul_precision(recipe.compile, "cpu")[0]
+
+
+def test_a_compiled_step_logs_its_first_call(caplog):
+    """The whole compile time (forward and the backward AOTAutograd compiles at the first
+    backward) is the step's first call: logged once, kept in ``compile_s``; eager: no wrapper."""
+    import logging
+
+    from gcnt.rl.accelerate import compile_seconds, timed_first_call
+
+    def step(x):
+        return x * 2
+
+    assert timed_first_call(step, CompileConfig(compile=False), "s") is step
+    timed = timed_first_call(step, CompileConfig(compile=True), "TD3 critic step")
+    with caplog.at_level(logging.INFO, logger="gcnt.rl.accelerate"):
+        assert timed(2) == 4 and timed(3) == 6
+    lines = [r.getMessage() for r in caplog.records if "TD3 critic step" in r.getMessage()]
+    assert len(lines) == 1 and "first call" in lines[0]
+    assert compile_seconds(timed) >= 0 and timed.compile_s is not None

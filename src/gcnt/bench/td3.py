@@ -182,11 +182,15 @@ def robot_batches(recipe) -> list:
     return env, [replay.sample_robot(i).to(recipe.device) for i in range(len(robots))]
 
 
-def compiled_vs_eager(recipe, n_updates: int, rounds: int = 5) -> dict:
+def compiled_vs_eager(
+    recipe, n_updates: int, rounds: int = 5, compiled_threads: int | None = None
+) -> dict:
     """The bare update compiled (``compile.compile=true``) against eager, each on the torch
-    threads training gives it, in alternate rounds of one run (median ms per update), and the
-    compile time: the first updates of the compiled learner (each of the schedule's batch shapes
-    through the critic and the actor step) less as many compiled updates once warm."""
+    threads training gives it (``compiled_threads``: the compiled one on these instead; inductor
+    generates its kernels for the threads set when it compiles), in alternate rounds of one run
+    (median ms per update), and the compile time: the first updates of the compiled learner (each
+    of the schedule's batch shapes through the critic and the actor step: both losses' forward
+    and backward graphs) less as many compiled updates once warm."""
     import torch
 
     from gcnt.rl.accelerate import compile_seconds
@@ -198,7 +202,9 @@ def compiled_vs_eager(recipe, n_updates: int, rounds: int = 5) -> dict:
     learners, threads = {}, {}
     for name, compiled in (("eager", False), ("compiled", True)):
         r = _with_compile(recipe, compiled)
-        threads[name] = _threads_for(r)
+        threads[name] = (
+            _threads_for(r) if not compiled or not compiled_threads else compiled_threads
+        )
         torch.manual_seed(0)
         learners[name] = TD3Learner(r, env)
     out: dict = {"threads": threads}

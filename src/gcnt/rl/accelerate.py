@@ -51,8 +51,8 @@ class _Timed:
     """A compiled function that logs how long its first call took (the compilation's time) and
     keeps the seconds in :attr:`compile_s`."""
 
-    def __init__(self, fn: Callable, name: str) -> None:
-        self.fn, self.name = fn, name
+    def __init__(self, fn: Callable, name: str, what: str = "compiled in") -> None:
+        self.fn, self.name, self.what = fn, name, what
         self.compile_s: float | None = None
 
     def __call__(self, *args, **kwargs):
@@ -61,7 +61,7 @@ class _Timed:
         start = time.perf_counter()
         out = self.fn(*args, **kwargs)
         self.compile_s = time.perf_counter() - start
-        log.info("torch.compile: %s compiled in %.1f s", self.name, self.compile_s)
+        log.info("torch.compile: %s %s %.1f s", self.name, self.what, self.compile_s)
         return out
 
 
@@ -145,6 +145,15 @@ def choose_matmul_precision(config: CompileConfig, device: str | torch.device) -
     if medium_keeps_float32():
         return "medium", "auto: this CPU's oneDNN products keep float32 accuracy"
     return "highest", "auto: medium would round this CPU's products to bfloat16"
+
+
+def timed_first_call(fn: Callable, config: CompileConfig, name: str) -> Callable:
+    """A step that calls compiled losses, with its first call's time logged when
+    ``compile.compile``: the whole compile time, as AOTAutograd compiles a loss's backward graph
+    at the first backward, after the forward's logged time; ``fn`` itself otherwise."""
+    if config.compile is not True:
+        return fn
+    return _Timed(fn, name, "first call (its graphs' forward and backward compiled) in")
 
 
 def compile_seconds(*fns: Callable) -> float:

@@ -71,6 +71,7 @@ from gcnt.rl.accelerate import (
     compile_step,
     optimizer_kwargs,
     owned,
+    timed_first_call,
 )
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.config_check import check_replay_memory
@@ -156,8 +157,12 @@ class TD3Learner:
         )
         if not pair:
             self.critics.views()  # built before any compiled call reads them
-        self.critic_step = accelerate(self._critic_step, self.accel, self.device)
-        self.actor_step = accelerate(self._actor_step, self.accel, self.device)
+        self.critic_step = timed_first_call(
+            accelerate(self._critic_step, self.accel, self.device), self.accel, "TD3 critic step"
+        )
+        self.actor_step = timed_first_call(
+            accelerate(self._actor_step, self.accel, self.device), self.accel, "TD3 actor step"
+        )
         self.updates = 0
 
     def _chains(self) -> None:
