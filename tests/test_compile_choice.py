@@ -49,6 +49,11 @@ def test_the_quick_start_stays_eager_and_long_runs_compile():
     # the paper's 10M steps on Walker++ (6 robots in its train split: any count compiles)
     paper = load_recipe(PAPER)
     assert resolve_compile(paper, 6)[0].compile.compile is True
+    # study 1's Walker++ runs (4 robots) stay eager at their 12,000 steps, compile at 100,000
+    study = load_recipe(STUDY)
+    assert resolve_compile(study, 4)[0].compile.compile is False
+    study.collector.total_frames = 100_000
+    assert resolve_compile(study, 4)[0].compile.compile is True
     # a run just past / just short of the break-even, each schedule
     for schedule, robots in (("paper", 4), ("mixed", 3)):
         r = load_recipe(

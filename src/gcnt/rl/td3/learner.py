@@ -406,12 +406,14 @@ class TD3Learner:
         self.updates = state["updates"]
 
 
-#: ``compile.compile: auto``'s break-even, in updates: the compile time of TD3's two loss
-#: forwards (first compile, cold inductor cache) over the seconds a compiled bare update saves
-#: against eager, per schedule; measured with ``gcnt.bench.td3.compiled_vs_eager`` at study 1's
-#: sizes (recipes/studies/walker.yaml: the smallest saving measured, so larger networks compile
-#: no later than they should) on a 2-core Xeon beside other jobs (docs/performance.md, issue 45)
-COMPILE_BREAK_EVEN = {"paper": 20_000.0, "mixed": 10_000.0}
+#: ``compile.compile: auto``'s break-even, in updates per schedule: the compile time of TD3's
+#: update (both losses' forward and backward graphs, a cold inductor cache as on a fresh clone)
+#: over the seconds a compiled bare update saves against eager, both on 1 torch thread and
+#: measured in one process (``gcnt.bench.td3.compiled_vs_eager``) on a 2-core Xeon (AMX) beside
+#: other jobs: 1,000 s cold (27-42 s from a warm cache); the quick start's mixed update saved
+#: 34-36 ms (0.60-0.79x eager), study 1's Walker++ paper-schedule update 6-22 ms (0.67-0.91x),
+#: taken as their means (docs/performance.md, issue 45)
+COMPILE_BREAK_EVEN = {"paper": 70_000.0, "mixed": 30_000.0}
 
 
 def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
@@ -434,16 +436,17 @@ def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
 
 def one_update_thread(recipe: Recipe) -> bool:
     """Whether a run's TD3 update takes 1 torch intra-op thread instead of torch's default (one
-    per core): an eager update on a CPU with 2 to 4 usable cores and ``compile.torch_threads``
-    unset. On an idle machine two threads can be faster (the quick start's one-call ensemble:
-    17.7 against 25 ms per update on a 2-core Xeon), but on a machine shared with other jobs each
-    kernel's parallel region waits for a thread another job has taken (106 against 26 ms beside
-    a busy loop), and one or two threads round differently, so the thread count is not chosen by
-    the machine's load: a seeded run repeats whatever else runs."""
+    per core): an update, eager or compiled, on a CPU with 2 to 4 usable cores and
+    ``compile.torch_threads`` unset. On an idle machine two threads can be faster (the quick
+    start's one-call ensemble: 17.7 against 25 ms per update on a 2-core Xeon), but on a machine
+    shared with other jobs each kernel's parallel region waits for a thread another job has taken
+    (106 against 26 ms beside a busy loop; the compiled quick-start update, whose kernels
+    inductor generates for the threads set when it compiles: 424 ms on 2 threads against 139 ms
+    on 1 at a load average of 12), and one or two threads round differently, so the thread count
+    is not chosen by the machine's load: a seeded run repeats whatever else runs."""
     return (
         torch.device(recipe.device).type == "cpu"
         and recipe.compile.torch_threads is None
-        and recipe.compile.compile is not True
         and 2 <= usable_cpus() <= 4
     )
 
