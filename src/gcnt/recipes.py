@@ -122,8 +122,9 @@ class EvalConfig:
 @dataclass
 class CompileConfig:
     """Speed switches of the learner and the collector, shared by every algorithm (the names of
-    torchrl's sota-implementations). Off by default but ``compile``, which is ``auto``: on a CPU,
-    torch.compile takes minutes to compile small networks, repaid only by a long enough run
+    torchrl's sota-implementations). Off by default, but ``compile`` and ``matmul_precision``,
+    which are ``auto``: on a CPU torch.compile takes minutes to compile small networks, repaid
+    only by a long enough run, and oneDNN's float32 products round to bfloat16 on some CPUs
     (docs/performance.md); the CUDA switches need CUDA."""
 
     #: torch.compile the learner's loss forwards, each as one graph (TD3: the critic loss and
