@@ -22,7 +22,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -277,6 +277,14 @@ class Prepared:
     robots: list[Robot]
     env: EnvBase
     algo: Algorithm
+    #: the settings chosen for the run and why (the algorithm's and the products' precision)
+    choices: list[str] = field(default_factory=list)
+
+    def log_choices(self) -> None:
+        """One log line per choice, when training starts (not while its input is checked, so
+        that a refused command's error stays its one line)."""
+        for line in self.choices:
+            log.info("%s", line)
 
 
 def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
@@ -289,7 +297,6 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
         torch.set_num_threads(recipe.compile.torch_threads)
     precision, why = choose_matmul_precision(recipe.compile, recipe.device)
     torch.set_float32_matmul_precision(precision)
-    log.info("float32 matrix products: %s (compile.matmul_precision: %s)", precision, why)
     seed_everything(recipe.seed)
     robots = train_robots(recipe)
     algo_cls = get_algorithm(recipe.algo)
@@ -310,7 +317,8 @@ def prepare(recipe: Recipe, *, resume: bool = False) -> Prepared:
         **start,
         **run_record(robots, run_robots(recipe)[1]),
     }
-    return Prepared(robots, env, algo)
+    choice = f"float32 matrix products: {precision} (compile.matmul_precision: {why})"
+    return Prepared(robots, env, algo, [choice, *algo.choices])
 
 
 def run_record(robots: Sequence[Robot], tests: Sequence[Robot]) -> dict[str, Any]:
@@ -373,6 +381,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
 
     env_steps = resume_checkpoint(run, algo) if resume else 0
     start, total = env_steps, recipe.collector.total_frames
+    prepared.log_choices()
     if not resume or env_steps < total:  # a finished run's recipe is left as it was
         store_robots(run.path, [*robots, *run_robots(recipe)[1]])  # before the record names them
         run.save_recipe(recipe)  # after the checkpoint was found to fit it

@@ -610,8 +610,8 @@ class TD3(Algorithm):
         n = len(robots)
         # compile.compile: auto resolved for this run (the recipe given keeps "auto")
         recipe, why = resolve_compile(recipe, n)
-        log.info("TD3 update compile.compile=%s", why)
         super().__init__(recipe, env, robots)
+        self.choices.append(f"TD3 update compile.compile={why}")
         c: TD3Config = self.config
         try:
             c.check_random_phase(recipe.collector.total_frames, n)
