@@ -172,3 +172,15 @@ def test_a_compiled_step_logs_its_first_call(caplog):
     lines = [r.getMessage() for r in caplog.records if "TD3 critic step" in r.getMessage()]
     assert len(lines) == 1 and "first call" in lines[0]
     assert compile_seconds(timed) >= 0 and timed.compile_s is not None
+
+
+def test_prepare_names_both_choices(recipe_file):
+    """The lines a run logs when training starts: the products' precision and TD3's compile
+    choice, each with its reason."""
+    from gcnt.rl.loop import prepare
+
+    prepared = prepare(load_recipe(recipe_file))
+    prepared.env.close()
+    assert len(prepared.choices) == 2
+    assert prepared.choices[0].startswith("float32 matrix products: ")
+    assert prepared.choices[1].startswith("TD3 update compile.compile=auto: eager, the run plans")
