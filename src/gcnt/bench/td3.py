@@ -49,18 +49,8 @@ from gcnt.bench.common import (
 
 def fixed_batch(recipe):
     """The env (closed) and one mini-batch shaped as ``recipe``'s schedule samples it."""
-    from gcnt.rl.factories import make_env, train_robots
-    from gcnt.rl.td3 import replay as rb
-
-    c = recipe.td3
-    robots = train_robots(recipe)
-    env = make_env(recipe, robots)
-    data = env.rollout(-(-c.batch_size // env.batch_size[0]) + 1, break_when_any_done=False)
-    env.close()
-    replay = rb.RobotReplay(len(robots), capacity=data.numel(), batch_size=c.batch_size)
-    replay.extend(data)
-    batch = replay.sample_mixed() if c.schedule == "mixed" else replay.sample_robot(0)
-    return env, batch.to(recipe.device)
+    env, batches = robot_batches(recipe)
+    return env, batches[0]
 
 
 @contextlib.contextmanager
@@ -155,18 +145,12 @@ def _threads_for(recipe) -> int:
 
     from gcnt.rl.td3.learner import one_update_thread
 
-    return (
-        1 if one_update_thread(recipe) else _DEFAULT_THREADS.setdefault(0, torch.get_num_threads())
-    )
+    return 1 if one_update_thread(recipe) else torch.get_num_threads()
 
 
-#: torch's own thread count, read before any learner set it to 1
-_DEFAULT_THREADS: dict[int, int] = {}
-
-
-def robot_batches(recipe) -> list:
-    """The mini-batches a schedule updates on: one mixed batch, or one batch of each robot (the
-    paper schedule: each robot's shapes compile once)."""
+def robot_batches(recipe) -> tuple:
+    """The env (closed) and the mini-batches a schedule updates on: one mixed batch, or one batch
+    of each robot (the paper schedule: each robot's shapes compile once)."""
     from gcnt.rl.factories import make_env, train_robots
     from gcnt.rl.td3 import replay as rb
 
@@ -196,7 +180,6 @@ def compiled_vs_eager(
     from gcnt.rl.accelerate import compile_seconds
     from gcnt.rl.td3.learner import TD3Learner
 
-    _threads_for(recipe)  # torch's own count, before a learner sets 1
     env, batches = robot_batches(recipe)
     period = recipe.td3.policy_delay
     learners, threads = {}, {}
@@ -231,7 +214,7 @@ def compiled_vs_eager(
         out[f"{name}_update_ms"] = 1e3 * statistics.median(seconds[name])
     c = learners["compiled"]
     out["compile_s"] = first["compiled"] - calls * out["compiled_update_ms"] / 1e3
-    out["first_calls_s"] = compile_seconds(c.critic_forward, c.actor_forward)
+    out["first_calls_s"] = compile_seconds(c.critic_step, c.actor_step)
     out["ratio"] = out["compiled_update_ms"] / out["eager_update_ms"]
     return out
 
