@@ -440,9 +440,8 @@ def one_update_thread(recipe: Recipe) -> bool:
     ``compile.torch_threads`` unset. On an idle machine two threads can be faster (the quick
     start's one-call ensemble: 17.7 against 25 ms per update on a 2-core Xeon), but on a machine
     shared with other jobs each kernel's parallel region waits for a thread another job has taken
-    (106 against 26 ms beside a busy loop; the compiled quick-start update, whose kernels
-    inductor generates for the threads set when it compiles: 424 ms on 2 threads against 139 ms
-    on 1 at a load average of 12), and one or two threads round differently, so the thread count
+    (106 against 26 ms beside a busy loop; inductor generates a compiled update's kernels for the
+    threads set when it compiles), and one or two threads round differently, so the thread count
     is not chosen by the machine's load: a seeded run repeats whatever else runs."""
     return (
         torch.device(recipe.device).type == "cpu"
