@@ -1,5 +1,5 @@
 """Tests for the ``compile:`` switches of ``gcnt.rl.accelerate``, without compiling anything: the
-switches are accepted from a recipe (off by default), the CUDA-only ones are rejected on a CPU
+switches are accepted from a recipe (off by default, but compile: auto), the CUDA-only ones are rejected on a CPU
 with a one-line reason, an unknown mode is refused, and the collector and optimiser keyword
 arguments follow the configuration (``accelerate`` leaves a function alone when nothing is
 switched on). Compiling itself is tested in tests/test_accelerate.py.
@@ -20,7 +20,7 @@ def test_compile_switches_are_accepted_and_cuda_only_ones_rejected_on_cpu():
         QUICK, ["compile.compile=true", "compile.policy_compile=true", "compile.mode=default"]
     )
     assert r.compile.compile and r.compile.policy_compile
-    assert not load_recipe(QUICK).compile.compile  # off by default
+    assert load_recipe(QUICK).compile.compile == "auto"  # chosen per run: test_compile_choice
     for key in ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs"):
         with pytest.raises(RecipeError) as e:
             load_recipe(QUICK, [f"compile.{key}=true"])

@@ -82,3 +82,54 @@ def test_working_operators_leave_out_views_but_not_copies():
     assert count_operators(lambda: x.view(6, 4).t().unsqueeze(0).to(torch.float32)) == (4, 0)
     assert count_operators(lambda: x.t().reshape(24)) == (2, 1)  # strided: reshape copies
     assert count_operators(lambda: x.to(torch.float64) + 1) == (2, 2)
+
+
+def test_the_paper_schedule_window_is_whole_rounds():
+    """Under the paper schedule the timed window runs from the end of one update phase to the
+    end of a later one: the steps collected before the first phase ended and after the last are
+    left out, so that steps and updates are those of whole rounds."""
+    from gcnt.bench.td3 import _whole_rounds
+
+    def row(steps, updates):
+        return {"env_steps": steps, "updates": updates, "env_steps_per_s": 10.0}
+
+    start = row(100, 0)
+    rows = [row(110, 0), row(120, 20), row(130, 20), row(140, 40), row(150, 40), row(160, 60)]
+    first, window, rounds = _whole_rounds(start, rows + [row(170, 60)], "paper")
+    assert first["env_steps"] == 120 and window[-1]["env_steps"] == 160 and rounds == 2
+    assert window[-1]["updates"] - first["updates"] == 40
+    assert _whole_rounds(start, rows[:3], "paper") == (start, [], 0)  # one phase: no round
+    assert _whole_rounds(start, rows, "mixed") == (start, rows, 3)  # every batch counts
+
+
+def test_matrix_products_of_a_linear_layer_and_their_flops():
+    """The products a linear layer's forward and backward dispatch, with their shapes; their
+    FLOPs are what torch's counter finds."""
+    import torch
+
+    from gcnt.bench.common import count_flops, matrix_products, product_flops
+
+    layer = torch.nn.Linear(6, 4)
+    x = torch.randn(5, 6)
+    products, (flops, _) = matrix_products(lambda: count_flops(lambda: layer(x).sum().backward()))
+    assert ("addmm", (5, 6), (6, 4)) in products
+    assert (
+        sum(n * product_flops(*key) for key, n in products.items()) == flops == 2 * 2 * 5 * 6 * 4
+    )  # forward, weight gradient
+    batched, _ = matrix_products(lambda: torch.bmm(torch.ones(3, 2, 5), torch.ones(3, 5, 7)))
+    assert batched == {("bmm", (3, 2, 5), (3, 5, 7)): 1}
+    assert product_flops("bmm", (3, 2, 5), (3, 5, 7)) == 2 * 3 * 2 * 5 * 7
+
+
+def test_the_compiled_line_and_the_shapes_peak(recipe_file, capsys, monkeypatch):
+    """``--compiled`` adds compiled ÷ eager for the bare update and the compile time (torch.compile
+    left out here: the line's making, not inductor, is under test); every schedule reports the
+    matmul rate at the update's own shapes."""
+    import torch
+
+    monkeypatch.setattr(torch, "compile", lambda fn, **kw: fn)
+    argv = ["bench-train", str(recipe_file), "--updates", "2", "--steps", "10", "--warmup", "8"]
+    assert gcnt([*argv, "--compiled"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("compiled ÷ eager bare update") == 2 and out.count("compile time") == 2
+    assert out.count("matmul rate at the update's own product shapes") == 2

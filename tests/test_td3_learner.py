@@ -263,6 +263,8 @@ def test_the_update_takes_one_thread_on_a_small_cpu_unless_told(monkeypatch):
         monkeypatch.setattr(td3_learner, "usable_cpus", lambda n=cores: n)
         assert td3_learner.one_update_thread(recipe) is want
     assert not td3_learner.one_update_thread(load_recipe(QUICK, ["compile.torch_threads=2"]))
+    monkeypatch.setattr(td3_learner, "usable_cpus", lambda: 2)  # compiled too
+    assert td3_learner.one_update_thread(load_recipe(QUICK, ["compile.compile=true"]))
 
 
 def test_twin_threads_are_refused_where_they_cannot_hold():

@@ -18,7 +18,7 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import yaml
 
@@ -122,13 +122,17 @@ class EvalConfig:
 @dataclass
 class CompileConfig:
     """Speed switches of the learner and the collector, shared by every algorithm (the names of
-    torchrl's sota-implementations). All off by default: on a CPU, torch.compile takes minutes to
-    compile small networks (docs/performance.md); the rest need CUDA."""
+    torchrl's sota-implementations). Off by default, but ``compile`` and ``matmul_precision``,
+    which are ``auto``: on a CPU torch.compile takes minutes to compile small networks, repaid
+    only by a long enough run, and oneDNN's float32 products round to bfloat16 on some CPUs
+    (docs/performance.md); the CUDA switches need CUDA."""
 
     #: torch.compile the learner's loss forwards, each as one graph (TD3: the critic loss and
     #: the actor loss, the optimiser tail eager; PPO: the loss forward), their backward through
-    #: AOTAutograd
-    compile: bool = False
+    #: AOTAutograd. auto (default): TD3 on a CPU compiles when the run plans more updates than
+    #: compiling repays (gcnt.rl.td3.learner.choose_compile, logged); eager otherwise, and for
+    #: algorithms without such a rule (PPO)
+    compile: bool | Literal["auto"] = "auto"
     #: torch.compile mode: default | reduce-overhead | max-autotune (unset: default)
     mode: str | None = None
     #: capture each update step in a CUDA graph (tensordict.nn.CudaGraphModule); CUDA and TD3
@@ -159,8 +163,16 @@ class CompileConfig:
     #: torch_threads is unset or 1
     twin_threads: bool | None = None
 
+    #: float32 matrix products (``torch.set_float32_matmul_precision``, set for the run and
+    #: recorded in ``resolved``): highest | high | medium, or auto (default): on a CPU, medium
+    #: (oneDNN's products) where a probe finds it keeps float32's accuracy, highest where it
+    #: rounds to bfloat16 (CPUs with AMX or AVX512-BF16); elsewhere highest
+    matmul_precision: Literal["auto", "highest", "high", "medium"] = "auto"
+
     #: switches that need a CUDA device
     CUDA_ONLY = ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs")
+    #: what a recorded run whose compile section lacks a key ran with (the key's default changed)
+    BEFORE_KEY: ClassVar[dict[str, Any]] = {"compile": False}
 
     def check(self) -> None:
         if self.torch_threads is not None and self.torch_threads < 1:
@@ -170,7 +182,7 @@ class CompileConfig:
                 f"twin_threads=true runs torch on 1 intra-op thread, but torch_threads is "
                 f"{self.torch_threads}; drop one of the two"
             )
-        if self.twin_threads and (self.compile or self.cudagraphs):
+        if self.twin_threads and (self.compile is True or self.cudagraphs):
             raise ValueError(
                 "twin_threads=true runs the critics on two Python threads, which a compiled or "
                 "CUDA-graphed step cannot hold; set compile.twin_threads=false"
@@ -832,10 +844,15 @@ def _load_run_recipe(
 
 
 def _as_recorded(data: Any) -> Any:
-    """A recorded recipe with the keys it predates set to what its run trained with: an
-    algorithm section's ``BEFORE_KEY`` values, where the section lacks the key (keys added with
-    a new default that changed what a missing key means)."""
-    if not isinstance(data, dict) or not isinstance(data.get("algo"), str):
+    """A recorded recipe with the keys it predates set to what its run trained with: the
+    ``BEFORE_KEY`` values of its algorithm's section and of ``compile``, where the section
+    lacks the key (keys added, or defaults changed, that changed what a missing key means)."""
+    if not isinstance(data, dict):
+        return data
+    compile_section = data.get("compile")
+    if compile_section is None or isinstance(compile_section, dict):
+        data = {**data, "compile": {**CompileConfig.BEFORE_KEY, **(compile_section or {})}}
+    if not isinstance(data.get("algo"), str):
         return data
     try:
         before = getattr(algorithm_section(data["algo"]), "BEFORE_KEY", {})

@@ -51,6 +51,69 @@ def matmul_peak_gflops(
     return 2 * size**3 / best / 1e9
 
 
+def matrix_products(fn) -> tuple[dict[tuple, int], object]:
+    """The matrix products ``fn()`` dispatches (``mm``, ``addmm``, ``bmm``, ``baddbmm``: what
+    linear layers and batched products become), as ``{(op, shape of a, shape of b): calls}``, and
+    what ``fn`` returned. Attention kernels are left out (their products are inside one call)."""
+    import torch
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    aten = torch.ops.aten
+    operands = {aten.mm: (0, 1), aten.bmm: (0, 1), aten.addmm: (1, 2), aten.baddbmm: (1, 2)}
+    seen: dict[tuple, int] = {}
+
+    class Products(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            where = operands.get(func.overloadpacket)
+            if where is not None:
+                a, b = (args[i] for i in where)
+                key = (func.overloadpacket.__name__, tuple(a.shape), tuple(b.shape))
+                seen[key] = seen.get(key, 0) + 1
+            return func(*args, **(kwargs or {}))
+
+    with Products():
+        out = fn()
+    return seen, out
+
+
+def product_flops(op: str, a: tuple, b: tuple) -> int:
+    """2 × m × k × n (× batch) of one product of shapes ``a`` [.., m, k] and ``b`` [.., k, n]."""
+    batch = a[0] if op in ("bmm", "baddbmm") else 1
+    return 2 * batch * a[-2] * a[-1] * b[-1]
+
+
+def shapes_peak_gflops(products: dict[tuple, int], repeats: int = 20, device: str = "cpu") -> dict:
+    """GFLOP/s of ``products`` (:func:`matrix_products`) run alone, each shape ``repeats`` times
+    on fresh float32 tensors (best of 3), weighted by how often the update calls it: the rate the
+    update's own matrix shapes allow through torch's products, each call's dispatch included,
+    against which the update's arithmetic rate is read. Also the share of that time in each
+    product kind."""
+    import torch
+
+    dev = torch.device(device)
+    total_flops, total_s = 0, 0.0
+    for (op, a, b), calls in products.items():
+        x, y = torch.randn(a, device=dev), torch.randn(b, device=dev)
+        fn = torch.bmm if op in ("bmm", "baddbmm") else torch.mm
+        fn(x, y)
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            for _ in range(repeats):
+                fn(x, y)
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)
+            best = min(best, (time.perf_counter() - t0) / repeats)
+        total_flops += calls * product_flops(op, a, b)
+        total_s += calls * best
+    return {
+        "gflops": total_flops / total_s / 1e9 if total_s else float("nan"),
+        "flops": total_flops,
+        "seconds": total_s,
+        "shapes": len(products),
+    }
+
+
 def device_line(device: str) -> str:
     """What the update runs on: the GPU's name and its peak memory so far, or the CPU threads."""
     import torch

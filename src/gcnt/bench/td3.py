@@ -41,24 +41,16 @@ from gcnt.bench.common import (
     device_line,
     launch_line,
     matmul_peak_gflops,
+    matrix_products,
+    shapes_peak_gflops,
     train_quietly,
 )
 
 
 def fixed_batch(recipe):
     """The env (closed) and one mini-batch shaped as ``recipe``'s schedule samples it."""
-    from gcnt.rl.factories import make_env, train_robots
-    from gcnt.rl.td3 import replay as rb
-
-    c = recipe.td3
-    robots = train_robots(recipe)
-    env = make_env(recipe, robots)
-    data = env.rollout(-(-c.batch_size // env.batch_size[0]) + 1, break_when_any_done=False)
-    env.close()
-    replay = rb.RobotReplay(len(robots), capacity=data.numel(), batch_size=c.batch_size)
-    replay.extend(data)
-    batch = replay.sample_mixed() if c.schedule == "mixed" else replay.sample_robot(0)
-    return env, batch.to(recipe.device)
+    env, batches = robot_batches(recipe)
+    return env, batches[0]
 
 
 @contextlib.contextmanager
@@ -116,8 +108,11 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
             learner.update(batch)
         out[name] = {"operators": step_operators(learner, batch, recipe.device)}
     with on_this_thread(learners["new"]) as learner:  # both critics' FLOPs counted
-        flops, _ = count_flops(lambda: [learner.update(batch) for _ in range(period)])
+        products, (flops, _) = matrix_products(
+            lambda: count_flops(lambda: [learner.update(batch) for _ in range(period)])
+        )
     out["flops_per_update"] = flops / period
+    out["shapes_peak"] = shapes_peak_gflops(products, device=recipe.device)
     # whole policy_delay periods per round, so that every round holds the same actor steps
     per_round = max(period, -(-n_updates // rounds // period) * period)
     seconds: dict[str, list[float]] = {k: [] for k in learners}
@@ -132,6 +127,144 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
         out[name]["updates_per_s"] = 1e3 / out[name]["update_ms"]
     out["ratio_to_previous"] = out["new"]["update_ms"] / out["previous"]["update_ms"]
     out["twin_threads"] = learners["new"].twin.parallel
+    return out
+
+
+def _with_compile(recipe, compiled: bool):
+    """A copy of ``recipe`` with ``compile.compile`` set (the rest as the recipe has it)."""
+    import copy
+
+    r = copy.deepcopy(recipe)
+    r.compile.compile = compiled
+    return r
+
+
+def _threads_for(recipe) -> int:
+    """torch's intra-op threads as training would set them for ``recipe``'s update."""
+    import torch
+
+    from gcnt.rl.td3.learner import one_update_thread
+
+    return 1 if one_update_thread(recipe) else torch.get_num_threads()
+
+
+def robot_batches(recipe) -> tuple:
+    """The env (closed) and the mini-batches a schedule updates on: one mixed batch, or one batch
+    of each robot (the paper schedule: each robot's shapes compile once)."""
+    from gcnt.rl.factories import make_env, train_robots
+    from gcnt.rl.td3 import replay as rb
+
+    c = recipe.td3
+    robots = train_robots(recipe)
+    env = make_env(recipe, robots)
+    data = env.rollout(-(-c.batch_size // env.batch_size[0]) + 1, break_when_any_done=False)
+    env.close()
+    replay = rb.RobotReplay(len(robots), capacity=data.numel(), batch_size=c.batch_size)
+    replay.extend(data)
+    if c.schedule == "mixed":
+        return env, [replay.sample_mixed().to(recipe.device)]
+    return env, [replay.sample_robot(i).to(recipe.device) for i in range(len(robots))]
+
+
+def compiled_vs_eager(
+    recipe, n_updates: int, rounds: int = 5, compiled_threads: int | None = None
+) -> dict:
+    """The bare update compiled (``compile.compile=true``) against eager, each on the torch
+    threads training gives it (``compiled_threads``: the compiled one on these instead; inductor
+    generates its kernels for the threads set when it compiles), in alternate rounds of one run
+    (median ms per update), and the compile time: the first updates of the compiled learner (each
+    of the schedule's batch shapes through the critic and the actor step: both losses' forward
+    and backward graphs) less as many compiled updates once warm."""
+    import torch
+
+    from gcnt.rl.accelerate import compile_seconds
+    from gcnt.rl.td3.learner import TD3Learner
+
+    env, batches = robot_batches(recipe)
+    period = recipe.td3.policy_delay
+    learners, threads = {}, {}
+    for name, compiled in (("eager", False), ("compiled", True)):
+        r = _with_compile(recipe, compiled)
+        threads[name] = (
+            _threads_for(r) if not compiled or not compiled_threads else compiled_threads
+        )
+        torch.manual_seed(0)
+        learners[name] = TD3Learner(r, env)
+    out: dict = {"threads": threads}
+    first: dict[str, float] = {}
+    for name, learner in learners.items():
+        torch.set_num_threads(threads[name])
+        t0 = time.perf_counter()
+        for b in batches:  # every shape through both steps
+            for _ in range(period):
+                learner.update(b)
+        first[name] = time.perf_counter() - t0
+    calls = period * len(batches)
+    per_round = max(period, -(-n_updates // rounds // period) * period)
+    seconds: dict[str, list[float]] = {k: [] for k in learners}
+    for i in range(rounds):
+        for name, learner in learners.items():
+            torch.set_num_threads(threads[name])
+            b = batches[i % len(batches)]
+            t0 = time.perf_counter()
+            rows = [learner.step(b) for _ in range(per_round)]
+            torch.stack([r["loss_critic"] for r in rows]).sum().item()
+            seconds[name].append((time.perf_counter() - t0) / per_round)
+    for name in learners:
+        out[f"{name}_update_ms"] = 1e3 * statistics.median(seconds[name])
+    c = learners["compiled"]
+    out["compile_s"] = first["compiled"] - calls * out["compiled_update_ms"] / 1e3
+    out["first_calls_s"] = compile_seconds(c.critic_step, c.actor_step)
+    out["ratio"] = out["compiled_update_ms"] / out["eager_update_ms"]
+    return out
+
+
+def matmul_precision_check(recipe, n_updates: int, rounds: int = 5) -> dict:
+    """The eager bare update with ``torch.set_float32_matmul_precision("medium")`` against the
+    default ("highest") in alternate rounds (median ms), and how far the weights of two learners
+    from the same initial weights, fed the same batch and noise, are apart after ``n_updates``
+    updates under each (largest absolute difference over every online parameter)."""
+    import torch
+
+    from gcnt.rl.td3.learner import TD3Learner
+
+    env, batches = robot_batches(recipe)
+    r = _with_compile(recipe, False)
+    torch.set_num_threads(_threads_for(r))
+    learners = {}
+    for name in ("highest", "medium"):
+        torch.manual_seed(0)
+        learners[name] = TD3Learner(r, env)
+    before = torch.get_float32_matmul_precision()
+    try:
+        for name, learner in learners.items():
+            torch.set_float32_matmul_precision(name)
+            for k in range(n_updates):
+                torch.manual_seed(1000 + k)  # the same target noise for both
+                learner.update(batches[k % len(batches)])
+        diff = max(
+            (a - b).abs().max().item()
+            for a, b in zip(learners["highest"]._online, learners["medium"]._online, strict=True)
+        )
+        scale = max(a.abs().max().item() for a in learners["highest"]._online)
+        period = recipe.td3.policy_delay
+        per_round = max(period, -(-n_updates // rounds // period) * period)
+        seconds: dict[str, list[float]] = {k: [] for k in learners}
+        for i in range(rounds):
+            for name, learner in learners.items():
+                torch.set_float32_matmul_precision(name)
+                b = batches[i % len(batches)]
+                t0 = time.perf_counter()
+                rows = [learner.step(b) for _ in range(per_round)]
+                torch.stack([x["loss_critic"] for x in rows]).sum().item()
+                seconds[name].append((time.perf_counter() - t0) / per_round)
+    finally:
+        torch.set_float32_matmul_precision(before)
+    out = {f"{k}_update_ms": 1e3 * statistics.median(v) for k, v in seconds.items()}
+    out["ratio"] = out["medium_update_ms"] / out["highest_update_ms"]
+    out["max_weight_diff"] = diff
+    out["max_weight"] = scale
+    out["updates_compared"] = n_updates
     return out
 
 
@@ -190,18 +323,37 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
             f"bench-train: no batch after the random phase ({random_end} env steps) within "
             f"{warmup + steps}: raise --steps"
         )
+    start, rows, rounds = _whole_rounds(prev[-1], rows, recipe.td3.schedule)
     secs = sum(
         (r["env_steps"] - p["env_steps"]) / r["env_steps_per_s"]
-        for p, r in zip([prev[-1], *rows], rows, strict=False)
+        for p, r in zip([start, *rows], rows, strict=False)
     )
-    span = rows[-1]["env_steps"] - prev[-1]["env_steps"]
-    updates = rows[-1]["updates"] - prev[-1]["updates"]
+    span = rows[-1]["env_steps"] - start["env_steps"] if rows else 0
+    updates = rows[-1]["updates"] - start["updates"] if rows else 0
     return {
-        "env_steps_per_s": span / secs,
-        "updates_per_s": updates / secs,
+        "env_steps_per_s": span / secs if secs else float("nan"),
+        "updates_per_s": updates / secs if secs else float("nan"),
         "updates": updates,
         "env_steps": span,
+        "rounds": rounds,
     }
+
+
+def _whole_rounds(start: dict, rows: list[dict], schedule: str) -> tuple[dict, list[dict], int]:
+    """The timed window as whole collection rounds: under the paper schedule (updates only when
+    every robot has ended an episode), from the end of the first update phase to the end of the
+    last (``rows`` after ``start``; an empty window when fewer than two phases fell in it), so
+    that its steps and updates are those of whole rounds; under the mixed schedule, every batch
+    (each ends with its updates). Also the number of rounds (update phases) in the window."""
+    before = [start, *rows[:-1]]
+    ends = [
+        i for i, (p, r) in enumerate(zip(before, rows, strict=True)) if r["updates"] > p["updates"]
+    ]
+    if schedule != "paper":
+        return start, rows, len(ends)
+    if len(ends) < 2:
+        return start, [], 0
+    return rows[ends[0]], rows[ends[0] + 1 : ends[-1] + 1], len(ends) - 1
 
 
 def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
@@ -315,6 +467,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
         r.td3.schedule = schedule
         m = bare_update_rate(r, args.updates)
         bare = m["new"]["updates_per_s"]
+        compiled = compiled_vs_eager(r, args.updates) if args.compiled else None
         e2e = end_to_end_rate(r, args.warmup, args.steps)
         out["schedules"][schedule] = {
             "bare_updates_per_s": bare,
@@ -328,6 +481,13 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             # new ÷ previous bare update time, alternate rounds of one run
             "ratio_to_previous": m["ratio_to_previous"],
             "arithmetic": arithmetic(m["flops_per_update"], bare, peak),
+            # the matmul rate at the update's own product shapes, and the update's share of it
+            "shapes_peak_gflops": m["shapes_peak"]["gflops"],
+            "share_of_shapes_peak": arithmetic(
+                m["flops_per_update"], bare, m["shapes_peak"]["gflops"]
+            )["share_of_peak"],
+            "compiled": compiled,
+            "rounds": e2e["rounds"],
             "launches_per_update": m["new"]["operators"]["per_update"],
             "end_to_end_env_steps_per_s": e2e["env_steps_per_s"],
             "end_to_end_updates_per_s": e2e["updates_per_s"],
@@ -376,16 +536,34 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
                 f"({one['operators']['working_per_update']:,.0f} writing data)"
             )
         print(arithmetic_line(row["arithmetic"], peak))
+        print(
+            f"       matmul rate at the update's own product shapes (each alone, its call "
+            f"included): {row['shapes_peak_gflops']:.1f} GFLOP/s; the update runs at "
+            f"{100 * row['share_of_shapes_peak']:.1f}% of it"
+        )
+        if row["compiled"]:
+            c = row["compiled"]
+            print(
+                f"       compiled ÷ eager bare update {c['ratio']:.2f} (compiled "
+                f"{c['compiled_update_ms']:.1f} ms on {c['threads']['compiled']} torch threads, "
+                f"eager {c['eager_update_ms']:.1f} ms on {c['threads']['eager']}; alternate "
+                "rounds)"
+            )
+            print(f"       compile time {c['compile_s']:.1f} s (first calls, every batch shape)")
         print(launch_line(row["launches_per_update"], row["bare_update_ms"], recipe.device))
         if not row["updates"]:
             print(
-                f"{schedule:6s} no update in the {args.steps} timed env steps (the paper schedule "
-                "updates when episodes end): raise --steps, or use a recipe with shorter episodes"
+                f"{schedule:6s} no whole round in the {args.steps} timed env steps (the paper "
+                "schedule updates when every robot has ended an episode; the window runs from "
+                "one update phase to a later one): raise --steps, or use a recipe with shorter "
+                "episodes"
             )
             continue
+        rounds = f", {row['rounds']} whole rounds" if schedule == "paper" else ""
         print(
             f"{schedule:6s} end to end {row['end_to_end_env_steps_per_s']:8.2f} env steps/s, "
-            f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates); "
+            f"{row['end_to_end_updates_per_s']:.2f} updates/s ({row['updates']} updates"
+            f"{rounds}); "
             f"ratio to the bare update {row['ratio']:.3f} (the share of the time spent in "
             "updates; the rest is the env, collection and replay)"
         )

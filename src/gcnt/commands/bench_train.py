@@ -48,6 +48,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="PPO instead: collection alone (no update), env steps/s of the single collector "
         "and of torchrl's multi-process collector with each of these worker counts, in one run",
     )
+    p.add_argument(
+        "--compiled",
+        action="store_true",
+        help="TD3: also the bare update compiled (compile.compile=true) against eager, "
+        "alternate rounds, and the compile time (minutes on a CPU)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 

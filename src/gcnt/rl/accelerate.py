@@ -20,6 +20,7 @@ returns its input unchanged.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import time
@@ -50,8 +51,8 @@ class _Timed:
     """A compiled function that logs how long its first call took (the compilation's time) and
     keeps the seconds in :attr:`compile_s`."""
 
-    def __init__(self, fn: Callable, name: str) -> None:
-        self.fn, self.name = fn, name
+    def __init__(self, fn: Callable, name: str, what: str = "compiled in") -> None:
+        self.fn, self.name, self.what = fn, name, what
         self.compile_s: float | None = None
 
     def __call__(self, *args, **kwargs):
@@ -60,7 +61,7 @@ class _Timed:
         start = time.perf_counter()
         out = self.fn(*args, **kwargs)
         self.compile_s = time.perf_counter() - start
-        log.info("torch.compile: %s compiled in %.1f s", self.name, self.compile_s)
+        log.info("torch.compile: %s %s %.1f s", self.name, self.what, self.compile_s)
         return out
 
 
@@ -68,9 +69,10 @@ def compile_step(
     fn: Callable, config: CompileConfig, *, fullgraph: bool = False, name: str | None = None
 ) -> Callable:
     """``torch.compile(fn)`` when ``compile.compile`` (with ``compile.mode``; ``fullgraph``: a
-    graph break is an error), else ``fn``. Compiled code is cached in
+    graph break is an error), else ``fn`` (``compile.compile`` still ``auto`` here is eager: an
+    algorithm with a rule resolves it first, :func:`choose_compile`). Compiled code is cached in
     :func:`inductor_cache_dir`; the first call's time is logged."""
-    if not config.compile:
+    if config.compile is not True:
         return fn
     kwargs: dict[str, Any] = {"fullgraph": fullgraph}
     if config.mode and config.mode != "default":
@@ -79,6 +81,79 @@ def compile_step(
     cache.mkdir(parents=True, exist_ok=True)
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(cache.resolve())
     return _Timed(torch.compile(fn, **kwargs), name or getattr(fn, "__name__", "step"))
+
+
+def choose_compile(
+    config: CompileConfig,
+    device: str | torch.device,
+    planned_updates: float,
+    break_even_updates: float,
+) -> tuple[bool, str]:
+    """``compile.compile`` for a run, and why: a bool as the recipe gives it; ``auto``: compiled
+    on a CPU when the run plans at least ``break_even_updates`` updates (the updates whose
+    saving repays the compile time, measured by the algorithm), eager below that, on other
+    devices (not measured) and where ``compile.twin_threads=true`` asks for the eager
+    two-thread critics."""
+    if config.compile is not True and config.compile is not False:
+        if config.twin_threads:
+            return False, "auto: eager, as compile.twin_threads=true runs the critics eagerly"
+        if torch.device(device).type != "cpu":
+            return False, f"auto: eager on {device} (the break-even was measured on CPUs)"
+        if planned_updates >= break_even_updates:
+            return True, (
+                f"auto: compiled, the run plans {planned_updates:,.0f} updates, past the "
+                f"{break_even_updates:,.0f} that repay the compile time"
+            )
+        return False, (
+            f"auto: eager, the run plans {planned_updates:,.0f} updates, fewer than the "
+            f"{break_even_updates:,.0f} that repay the compile time"
+        )
+    return bool(config.compile), f"{str(config.compile).lower()} (the recipe's)"
+
+
+#: relative error of a float32 product above which "medium" is taken to round to bfloat16
+#: (float32: ~1e-6; bfloat16's 8-bit mantissa: ~1e-3)
+BF16_ERROR = 1e-4
+
+
+@functools.cache
+def medium_keeps_float32() -> bool:
+    """Whether ``set_float32_matmul_precision("medium")`` keeps float32's accuracy on this CPU:
+    a 256 x 256 x 256 product of fixed random matrices under it, against float64 (oneDNN rounds
+    the operands to bfloat16 where the CPU has AMX or AVX512-BF16). Torch's setting is restored
+    afterwards."""
+    before = torch.get_float32_matmul_precision()
+    gen = torch.Generator().manual_seed(0)
+    a, b = (torch.randn(256, 256, generator=gen) for _ in range(2))
+    exact = a.double() @ b.double()
+    try:
+        torch.set_float32_matmul_precision("medium")
+        error = ((a @ b).double() - exact).abs().max() / exact.abs().max()
+    finally:
+        torch.set_float32_matmul_precision(before)
+    return bool(error < BF16_ERROR)
+
+
+def choose_matmul_precision(config: CompileConfig, device: str | torch.device) -> tuple[str, str]:
+    """``compile.matmul_precision`` for a run, and why: as the recipe names it; ``auto``: on a CPU
+    "medium" where :func:`medium_keeps_float32`, "highest" where it would round to bfloat16;
+    "highest" on other devices (TF32 changes a GPU's float32 results)."""
+    if config.matmul_precision != "auto":
+        return config.matmul_precision, "the recipe's"
+    if torch.device(device).type != "cpu":
+        return "highest", f"auto: float32 products on {device}"
+    if medium_keeps_float32():
+        return "medium", "auto: this CPU's oneDNN products keep float32 accuracy"
+    return "highest", "auto: medium would round this CPU's products to bfloat16"
+
+
+def timed_first_call(fn: Callable, config: CompileConfig, name: str) -> Callable:
+    """A step that calls compiled losses, with its first call's time logged when
+    ``compile.compile``: the whole compile time, as AOTAutograd compiles a loss's backward graph
+    at the first backward, after the forward's logged time; ``fn`` itself otherwise."""
+    if config.compile is not True:
+        return fn
+    return _Timed(fn, name, "first call (its graphs' forward and backward compiled) in")
 
 
 def compile_seconds(*fns: Callable) -> float:
@@ -116,7 +191,7 @@ def owned(outputs: dict[str, torch.Tensor], config: CompileConfig) -> dict[str, 
     """A step's outputs that outlive the next step: cloned out of the CUDA graph trees' memory
     when ``compile.mode`` runs them there (a phase reads all its steps' losses at its end),
     ``outputs`` itself otherwise."""
-    if config.compile and config.mode in CUDAGRAPH_TREE_MODES:
+    if config.compile is True and config.mode in CUDAGRAPH_TREE_MODES:
         return {k: v.clone() for k, v in outputs.items()}
     return outputs
 

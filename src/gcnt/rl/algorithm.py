@@ -71,6 +71,8 @@ class Algorithm(ABC):
         self.config = recipe.algo_config
         self.env = env
         self.robots = list(robots)
+        #: what it chose for this run and why, one line each: logged when training starts
+        self.choices: list[str] = []
 
     # ------------------------------------------------------------------ the env
     @classmethod

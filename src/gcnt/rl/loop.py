@@ -22,7 +22,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -41,7 +41,7 @@ from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.resolved_run import RunRecord, network_sizes, resolve_run
 from gcnt.rl import init_from, stop
-from gcnt.rl.accelerate import collector_kwargs
+from gcnt.rl.accelerate import choose_matmul_precision, collector_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of
@@ -276,6 +276,14 @@ class Prepared:
     algo: Algorithm
     #: the run's record, as ``recipe.resolved`` holds it
     record: RunRecord
+    #: the settings chosen for the run and why (the algorithm's and the products' precision)
+    choices: list[str] = field(default_factory=list)
+
+    def log_choices(self) -> None:
+        """One log line per choice, when training starts (not while its input is checked, so
+        that a refused command's error stays its one line)."""
+        for line in self.choices:
+            log.info("%s", line)
 
 
 def prepare(recipe: Recipe, *, resume: bool = False, lookups: dict | None = None) -> Prepared:
@@ -287,6 +295,8 @@ def prepare(recipe: Recipe, *, resume: bool = False, lookups: dict | None = None
     record = check_recipe(recipe, lookups=lookups)
     if recipe.compile.torch_threads is not None:
         torch.set_num_threads(recipe.compile.torch_threads)
+    precision, why = choose_matmul_precision(recipe.compile, recipe.device)
+    torch.set_float32_matmul_precision(precision)
     seed_everything(recipe.seed)
     robots = list(record.train_robots)
     algo_cls = get_algorithm(recipe.algo)
@@ -301,8 +311,14 @@ def prepare(recipe: Recipe, *, resume: bool = False, lookups: dict | None = None
                 f"network {recipe.network.name!r} on {benchmark_of(recipe).name} robots: {e}"
             ) from None
         raise
-    recipe.resolved = {**algo.resolved(), **start, **record.resolved()}
-    return Prepared(robots, env, algo, record)
+    recipe.resolved = {
+        **algo.resolved(),
+        "matmul_precision": precision,
+        **start,
+        **record.resolved(),
+    }
+    choice = f"float32 matrix products: {precision} (compile.matmul_precision: {why})"
+    return Prepared(robots, env, algo, record, [choice, *algo.choices])
 
 
 def train(
@@ -356,6 +372,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
 
     env_steps = resume_checkpoint(run, algo) if resume else 0
     start, total = env_steps, recipe.collector.total_frames
+    prepared.log_choices()
     if not resume or env_steps < total:  # a finished run's recipe is left as it was
         # before the record names them
         store_robots(run.path, [*robots, *prepared.record.test_robots])

@@ -131,6 +131,14 @@ class TD3Config:
         per_robot = self.random_counted == "per_robot"
         return self.init_random_frames * (max(1, num_robots) if per_robot else 1)
 
+    def planned_updates(self, total_frames: int, num_robots: int) -> float:
+        """About how many updates a run of ``total_frames`` env steps on ``num_robots`` robots
+        makes: ``updates_per_step`` per stored step after the random phase (from the first step
+        with ``update_during_random``), one mixed update per step of every robot."""
+        frames = total_frames - (0 if self.update_during_random else self.random_frames(num_robots))
+        per_step = self.updates_per_step / (max(1, num_robots) if self.schedule == "mixed" else 1)
+        return max(0, frames) * per_step
+
     #: what a recorded run whose td3 section lacks a key trained with (the key came later)
     BEFORE_KEY: ClassVar[dict[str, Any]] = {
         "random_counted": "total",

@@ -45,6 +45,7 @@ Every stored environment step is counted, over all robots.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -66,9 +67,11 @@ from gcnt.rl.accelerate import (
     accelerate,
     autocast,
     begin_step,
+    choose_compile,
     compile_step,
     optimizer_kwargs,
     owned,
+    timed_first_call,
 )
 from gcnt.rl.algorithm import Algorithm, CollectSettings
 from gcnt.rl.config_check import check_replay_memory
@@ -140,7 +143,7 @@ class TD3Learner:
         self.twin = make_pair_runner(
             self.accel.twin_threads if twin_threads is None else twin_threads,
             self.device,
-            compiled=self.accel.compile or self.accel.cudagraphs,
+            compiled=self.accel.compile is True or self.accel.cudagraphs,
             dropout=has_dropout(critics[0]),
             torch_threads=self.accel.torch_threads,
         )
@@ -154,8 +157,12 @@ class TD3Learner:
         )
         if not pair:
             self.critics.views()  # built before any compiled call reads them
-        self.critic_step = accelerate(self._critic_step, self.accel, self.device)
-        self.actor_step = accelerate(self._actor_step, self.accel, self.device)
+        self.critic_step = timed_first_call(
+            accelerate(self._critic_step, self.accel, self.device), self.accel, "TD3 critic step"
+        )
+        self.actor_step = timed_first_call(
+            accelerate(self._actor_step, self.accel, self.device), self.accel, "TD3 actor step"
+        )
         self.updates = 0
 
     def _chains(self) -> None:
@@ -399,18 +406,46 @@ class TD3Learner:
         self.updates = state["updates"]
 
 
+#: ``compile.compile: auto``'s break-even, in updates per schedule: the compile time of TD3's
+#: update (both losses' forward and backward graphs, a cold inductor cache as on a fresh clone)
+#: over the seconds a compiled bare update saves against eager, both on 1 torch thread and
+#: measured in one process (``gcnt.bench.td3.compiled_vs_eager``) on a 2-core Xeon (AMX) beside
+#: other jobs: 1,000 s cold (27-42 s from a warm cache); the quick start's mixed update saved
+#: 34-36 ms (0.60-0.79x eager), study 1's Walker++ paper-schedule update 6-22 ms (0.67-0.91x),
+#: taken as their means (docs/performance.md, issue 45)
+COMPILE_BREAK_EVEN = {"paper": 70_000.0, "mixed": 30_000.0}
+
+
+def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
+    """``recipe`` with ``compile.compile`` a bool (:func:`gcnt.rl.accelerate.choose_compile` for
+    ``auto``: the run's planned updates, :meth:`TD3Config.planned_updates`, against
+    :data:`COMPILE_BREAK_EVEN`; a copy, the recipe given is left as it is), and why."""
+    c: TD3Config = recipe.algo_config
+    compiled, why = choose_compile(
+        recipe.compile,
+        recipe.device,
+        c.planned_updates(recipe.collector.total_frames, num_robots),
+        COMPILE_BREAK_EVEN[c.schedule],
+    )
+    if compiled is recipe.compile.compile:
+        return recipe, why
+    run = copy.copy(recipe)
+    run.compile = dataclasses.replace(recipe.compile, compile=compiled)
+    return run, why
+
+
 def one_update_thread(recipe: Recipe) -> bool:
     """Whether a run's TD3 update takes 1 torch intra-op thread instead of torch's default (one
-    per core): an eager update on a CPU with 2 to 4 usable cores and ``compile.torch_threads``
-    unset. On an idle machine two threads can be faster (the quick start's one-call ensemble:
-    17.7 against 25 ms per update on a 2-core Xeon), but on a machine shared with other jobs each
-    kernel's parallel region waits for a thread another job has taken (106 against 26 ms beside
-    a busy loop), and one or two threads round differently, so the thread count is not chosen by
-    the machine's load: a seeded run repeats whatever else runs."""
+    per core): an update, eager or compiled, on a CPU with 2 to 4 usable cores and
+    ``compile.torch_threads`` unset. On an idle machine two threads can be faster (the quick
+    start's one-call ensemble: 17.7 against 25 ms per update on a 2-core Xeon), but on a machine
+    shared with other jobs each kernel's parallel region waits for a thread another job has taken
+    (106 against 26 ms beside a busy loop; inductor generates a compiled update's kernels for the
+    threads set when it compiles), and one or two threads round differently, so the thread count
+    is not chosen by the machine's load: a seeded run repeats whatever else runs."""
     return (
         torch.device(recipe.device).type == "cpu"
         and recipe.compile.torch_threads is None
-        and not recipe.compile.compile
         and 2 <= usable_cpus() <= 4
     )
 
@@ -571,9 +606,12 @@ class TD3(Algorithm):
     name = "td3"
 
     def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:
+        n = len(robots)
+        # compile.compile: auto resolved for this run (the recipe given keeps "auto")
+        recipe, why = resolve_compile(recipe, n)
         super().__init__(recipe, env, robots)
+        self.choices.append(f"TD3 update compile.compile={why}")
         c: TD3Config = self.config
-        n = len(self.robots)
         try:
             c.check_random_phase(recipe.collector.total_frames, n)
         except ValueError as e:
@@ -647,6 +685,7 @@ class TD3(Algorithm):
             "num_envs": int(self.env.batch_size[0]),
             "frames_per_batch": fpb,
             "init_random_frames": _whole_batches(self.random_frames, fpb),
+            "compile": self.recipe.compile.compile,
             "buffer_per_robot": rb.per_robot_capacity(
                 len(self.robots), c.buffer_size_per_robot, c.buffer_total_size
             ),

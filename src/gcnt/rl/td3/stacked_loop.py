@@ -125,6 +125,7 @@ def train_seeds(recipes: list[Recipe]) -> list[RunDir]:
         for p in prepared:
             p.env.close()
         raise
+    prepared[0].log_choices()  # the same for every seed
     try:
         _lockstep(recipes, runs, prepared, stacked, rng)
     finally:
