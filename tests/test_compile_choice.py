@@ -112,8 +112,11 @@ def test_a_recorded_run_keeps_its_compile_reading(tmp_path):
         (run / "recipe.yaml").write_text(yaml.safe_dump(d, sort_keys=False))
         recipe = RunDir(run).load_recipe(anywhere=True)
         assert recipe.compile.compile is (section is True)
+        # recorded before the key: torch's default products, as it ran
+        assert recipe.compile.matmul_precision == "highest"
     # a recipe file without the key (not a recorded run) takes today's default
-    assert recipe_from_dict({"env": {"robots": ["hopper_3"]}}).compile.compile == "auto"
+    fresh = recipe_from_dict({"env": {"robots": ["hopper_3"]}})
+    assert fresh.compile.compile == "auto" and fresh.compile.matmul_precision == "auto"
 
 
 def test_matmul_precision_follows_the_probe(monkeypatch):

@@ -172,7 +172,7 @@ class CompileConfig:
     #: switches that need a CUDA device
     CUDA_ONLY = ("cudagraphs", "amp", "replay_on_device", "policy_cudagraphs")
     #: what a recorded run whose compile section lacks a key ran with (the key's default changed)
-    BEFORE_KEY: ClassVar[dict[str, Any]] = {"compile": False}
+    BEFORE_KEY: ClassVar[dict[str, Any]] = {"compile": False, "matmul_precision": "highest"}
 
     def check(self) -> None:
         if self.torch_threads is not None and self.torch_threads < 1:
