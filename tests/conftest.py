@@ -8,6 +8,9 @@ Tests marked ``gpu`` run on CUDA where there is one, else on the emulated GPU of
 also marked ``gpu_matrix`` (the whole GPU matrix) run only with ``--gpu-matrix``
 (``make test-gpu-emulated``)."""
 
+import gcnt  # noqa: F401  (first: before torch loads)
+
+# isort: split
 import os
 from pathlib import Path
 
@@ -15,7 +18,6 @@ import pytest
 import torch
 from cli_helpers import tiny_td3_recipe
 
-import gcnt  # noqa: F401
 from gcnt import plugins
 from gcnt.cli import main as gcnt_cli
 

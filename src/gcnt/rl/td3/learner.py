@@ -619,11 +619,9 @@ class TD3(Algorithm):
         #: env steps of uniform-random actions over all robots
         self.random_frames = c.random_frames(n)
         if one_update_thread(recipe) and torch.get_num_threads() != 1:
-            log.info(
-                "TD3 update on a %d-core CPU: torch intra-op threads %d -> 1 "
-                "(compile.torch_threads sets them)",
-                usable_cpus(),
-                torch.get_num_threads(),
+            self.choices.append(
+                f"TD3 update on a {usable_cpus()}-core CPU: torch intra-op threads "
+                f"{torch.get_num_threads()} -> 1 (compile.torch_threads sets them)"
             )
             torch.set_num_threads(1)
         self.learner = TD3Learner(recipe, env)
