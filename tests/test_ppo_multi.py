@@ -252,3 +252,37 @@ def test_each_worker_steps_worker_envs_envs(tmp_path: Path):
         ppo_learner.PPOLearner.learn = original
     assert seen == [(8, 10)]
     assert run.read_metrics()
+
+
+def test_a_stopped_workers_error_is_raised_again_when_the_waiting_code_swallows_it(
+    tmp_path: Path, monkeypatch
+):
+    """torchrl's wait for a worker's acknowledgement catches every Exception and logs it: the
+    watch keeps raising until its error leaves the watched block."""
+    import os
+    import time
+    from types import SimpleNamespace
+
+    from gcnt.rl import loop
+
+    monkeypatch.setattr(loop, "STOPPED_WORKER_S", 0.2)
+    sleeper = subprocess.Popen(["sleep", "60"])
+    try:
+        os.kill(sleeper.pid, signal.SIGSTOP)
+        collector = SimpleNamespace(procs=[SimpleNamespace(pid=sleeper.pid, exitcode=None)])
+        swallowed = []
+        with pytest.raises(loop.WorkerDiedError, match="has been stopped"):
+            with loop.worker_watch(collector, RunDir(tmp_path / "run"), every=0.05):
+                deadline = time.monotonic() + 30
+                while time.monotonic() < deadline:
+                    try:
+                        while time.monotonic() < deadline:
+                            time.sleep(0.01)
+                    except Exception as e:  # as torchrl's ack wait does
+                        swallowed.append(e)
+                        if len(swallowed) >= 2:  # now the waiting code lets it through
+                            raise
+        assert len(swallowed) == 2
+    finally:
+        sleeper.kill()
+        sleeper.wait()

@@ -171,13 +171,14 @@ def worker_watch(collector: Any, run: RunDir, every: float = 1.0, waiting: Waiti
                     f"{STOPPED_WORKER_S:.0f} s; what was checkpointed is kept: continue with "
                     f"gcnt train --resume {run.path}"
                 )
+        # The timer stays armed after a raise: code the main thread is in may catch and log the
+        # error (torchrl's wait for a worker's acknowledgement catches every Exception), so it
+        # is raised again at every tick until it leaves the block (whose exit disarms the timer)
         if dead is not None:
-            signal.setitimer(signal.ITIMER_REAL, 0)
             raise dead
         if stop.requested() and waiting is not None and waiting.on:
             stop_seen.append(now)
             if stopped or now - stop_seen[0] >= STOP_WAIT_S:
-                signal.setitimer(signal.ITIMER_REAL, 0)
                 raise StopWhileWaiting
 
     previous = signal.signal(signal.SIGALRM, check)
