@@ -34,7 +34,7 @@ import logging
 import os
 import re
 import sys
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -269,15 +269,12 @@ def recorded_identity(entry: Any) -> dict[str, Any] | None:
     return None
 
 
-def check_recorded(
-    recorded: Iterable[Any], run: str | Path, needed: Callable[[], Iterable[str]]
-) -> None:
+def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[str]) -> None:
     """Check the plugins ``run`` recorded against those this process imported.
 
     A recorded plugin is matched by the hash of its source, else by its name (then a warning
-    names both hashes where they differ). ``needed()``: what the run names that no imported code
-    registers (its method, benchmark or algorithm), asked only when a recorded plugin is
-    unmatched (it reads the registries, which loads torch); if any, the unmatched plugin is a
+    names both hashes where they differ). ``needed``: what the run names that no imported code
+    registers (its method, benchmark or algorithm); if any, an unmatched recorded plugin is a
     PluginError naming it, its hash and ``--plugin``. Nothing is ever imported from the record.
     """
     have = list(_loaded.values())
@@ -302,10 +299,8 @@ def check_recorded(
                 )
             continue
         missing.append(ident)
-    if not missing:
-        return
-    names = list(needed())
-    if names:
+    names = list(needed)
+    if names and missing:
         first = missing[0]
         sha = f" (sha256 {_short(first['sha256'])})" if first["sha256"] else ""
         raise PluginError(

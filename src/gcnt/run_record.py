@@ -237,4 +237,4 @@ def check_plugins(run_dir: str | Path, recipe: Mapping[str, Any]) -> None:
     recorded = recorded_plugins(recipe)
     if not recorded:
         return
-    plugins.check_recorded(recorded, run_dir, lambda: unregistered_names(recipe))
+    plugins.check_recorded(recorded, run_dir, unregistered_names(recipe))
