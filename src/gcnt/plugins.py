@@ -277,6 +277,7 @@ def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[st
     registers (its method, benchmark or algorithm); if any, an unmatched recorded plugin is a
     PluginError naming it, its hash and ``--plugin``. Nothing is ever imported from the record.
     """
+    needed = list(needed)
     have = list(_loaded.values())
     missing = []
     for entry in recorded:
@@ -299,12 +300,11 @@ def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[st
                 )
             continue
         missing.append(ident)
-    names = list(needed)
-    if names and missing:
+    if needed and missing:
         first = missing[0]
         sha = f" (sha256 {_short(first['sha256'])})" if first["sha256"] else ""
         raise PluginError(
-            f"{run} names {', '.join(names)}, which no code imported here registers; it was "
+            f"{run} names {', '.join(needed)}, which no code imported here registers; it was "
             f"trained with the plugin {first['name']}{sha}, which this command did not name "
             f"(gcnt never imports a run's plugins): pass it with `gcnt --plugin "
             f"PATH_OR_MODULE ...` (or {ENV_VAR})"
