@@ -372,17 +372,57 @@ def test_error_in_a_helper_thread_reaches_the_caller():
     for s in env._sims:
         s.ctrl_slice = slice(0, 1000)
     queue = _StepQueue(list(range(4)))
+    inside = threading.Event()
 
     def helper():
-        with pytest.raises(ValueError):
-            env._work(queue, np.zeros(3), 4)
+        assert queue.enter()
+        inside.set()
+        try:
+            with pytest.raises(ValueError):
+                env._work(queue, np.zeros(3), queue.take_first)
+        finally:
+            queue.leave()
 
     t = threading.Thread(target=helper, daemon=True)
     t.start()
+    inside.wait(timeout=30)
     with pytest.raises(ValueError):
-        queue.wait()
+        queue.close()
     t.join(timeout=30)
     assert not t.is_alive()
+
+
+def test_step_queue_hands_each_sub_env_out_once_and_waits_only_for_helpers_inside():
+    """Helpers take the most expensive sub-envs (the front), the caller the cheapest (the
+    back); a helper that starts after the caller closed the step does nothing, and close does
+    not wait for it."""
+    import threading
+
+    from gcnt.envs.stepper import StepQueue as _StepQueue
+
+    queue = _StepQueue([5, 3, 8, 1])
+    assert queue.take_first() == 5 and queue.take_last() == 1
+    assert queue.enter()
+    queue.leave()
+    assert queue.take_first() == 3 and queue.take_last() == 8
+    assert queue.take_first() == -1 and queue.take_last() == -1
+    queue.close()  # no helper inside: returns at once
+    assert not queue.enter()  # a helper that starts now finds the step closed
+
+    queue = _StepQueue([0, 1])
+    assert queue.enter()
+    closed = threading.Event()
+
+    def caller():
+        queue.close()
+        closed.set()
+
+    t = threading.Thread(target=caller, daemon=True)
+    t.start()
+    assert not closed.wait(timeout=0.2)  # waits for the helper inside
+    queue.leave()
+    assert closed.wait(timeout=30)
+    t.join(timeout=30)
 
 
 def test_thread_count_tuning():

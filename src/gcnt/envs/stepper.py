@@ -1,8 +1,9 @@
 """The physics thread stepper of :class:`gcnt.envs.base.BatchedMujocoEnv` and its tuning.
 
-A step runs on ``num_threads`` threads (``mj_step`` releases the GIL): each thread pulls sub-envs
-from a shared queue (:class:`StepQueue`), most expensive first (by a running average of their
-physics time, so that the threads finish together), steps them, refreshes the kinematics the
+A step runs on ``num_threads`` threads (``mj_step`` releases the GIL): the sub-envs are queued
+most expensive first (by a running average of their physics time, :class:`StepQueue`), the
+helper threads take them from the front and the calling thread from the back (so that the
+threads finish together); each thread steps its sub-envs, refreshes the kinematics the
 featuriser needs, copies the rows the observation needs, and applies the task rules (while one
 thread does this Python work, the others are in the physics); then one vectorised featurisation
 covers all sub-envs. With ``num_threads=None`` the env probes now and then whether one thread
@@ -60,43 +61,65 @@ def cost_guess(model: mujoco.MjModel, frame_skip: int) -> float:
 
 
 class StepQueue:
-    """The sub-envs of one step, handed out in order to the threads; the thread that finishes
-    the last one (or fails) wakes the caller of :meth:`wait`."""
+    """The sub-envs of one step, most expensive first, shared by the threads without a lock:
+    helper threads take from the front (:meth:`take_first`), the calling thread from the back
+    (:meth:`take_last`; a deque's pops are atomic), so that the threads meet where their shares
+    of the work are about equal. The caller's :meth:`close` then waits only for helpers that
+    are inside (one that starts later finds nothing left and leaves); a lock is taken twice per
+    helper and step, not per sub-env (a lock taken per sub-env by two threads made a step of 25
+    sub-envs half again as long as its physics on two threads)."""
 
-    __slots__ = ("_done", "_error", "_finished", "_items", "_lock", "_next", "_total")
+    __slots__ = ("_closed", "_done", "_error", "_inside", "_items", "_lock")
 
     def __init__(self, items: list[int]):
-        self._items, self._total = items, len(items)
-        self._next = self._finished = 0
+        self._items = deque(items)
         self._lock = threading.Lock()
         self._done = threading.Event()
+        self._inside = 0
+        self._closed = False
         self._error: BaseException | None = None
-        if not items:
-            self._done.set()
 
-    def take(self, limit: int) -> int:
-        """The next sub-env if its queue position is below ``limit``, else -1."""
-        with self._lock:
-            j = self._next
-            if j >= limit or self._error is not None:
-                return -1
-            self._next = j + 1
-        return self._items[j]
+    def take_first(self) -> int:
+        """The most expensive sub-env left (a helper's next), or -1."""
+        try:
+            return self._items.popleft()
+        except IndexError:
+            return -1
 
-    def finish(self) -> None:
+    def take_last(self) -> int:
+        """The cheapest sub-env left (the calling thread's next), or -1."""
+        try:
+            return self._items.pop()
+        except IndexError:
+            return -1
+
+    def enter(self) -> bool:
+        """A helper starts on this step: False once the caller has closed it (nothing left)."""
         with self._lock:
-            self._finished += 1
-            if self._finished == self._total:
+            if self._closed:
+                return False
+            self._inside += 1
+            return True
+
+    def leave(self) -> None:
+        """A helper that entered is done (wakes the caller of :meth:`close` if it waits)."""
+        with self._lock:
+            self._inside -= 1
+            if self._closed and not self._inside:
                 self._done.set()
 
     def fail(self, error: BaseException) -> None:
-        with self._lock:
-            self._error = error
-        self._done.set()
+        """Stop handing out sub-envs; the caller of :meth:`close` raises ``error``."""
+        self._error = error
+        self._items.clear()
 
-    def wait(self) -> None:
-        """Return when every sub-env is done; re-raise a helper thread's error."""
-        self._done.wait()
+    def close(self) -> None:
+        """Return when every helper that entered is done; re-raise a helper thread's error."""
+        with self._lock:
+            self._closed = True
+            wait = self._inside > 0
+        if wait:
+            self._done.wait()
         if self._error is not None:
             raise self._error
 
@@ -172,7 +195,6 @@ class ThreadedPhysics:
         # Python lists: the hot loop reads and writes single items, which numpy makes slow.
         self._cost = [cost_guess(s.model, self.frame_skip) for s in self._sims]
         self._order = sorted(range(n), key=lambda i: -self._cost[i])
-        self._reserve = max(1, n // 12)  # sub-envs the helpers leave to the calling thread
         self._pool = (
             ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix=self.name.lower())
             if self.num_threads > 1
@@ -180,18 +202,27 @@ class ThreadedPhysics:
         )
         self._featurizer.pool = self._pool
 
-    def _work(self, queue: StepQueue, ctrl: np.ndarray, limit: int) -> None:
-        """One thread's share of a step: take sub-envs from ``queue`` (up to position ``limit``),
-        step them, copy out what the observation needs, and apply the task rules (Python work
-        that overlaps with the other threads' physics)."""
+    def _help(self, queue: StepQueue, ctrl: np.ndarray) -> None:
+        """A helper thread's share of a step: the most expensive sub-envs left (:meth:`_work`),
+        unless the calling thread has already done them all."""
+        if not queue.enter():
+            return
+        try:
+            self._work(queue, ctrl, queue.take_first)
+        finally:
+            queue.leave()
+
+    def _work(self, queue: StepQueue, ctrl: np.ndarray, take) -> None:
+        """One thread's share of a step: take sub-envs with ``take`` until none is left, step
+        them, copy out what the observation needs, and apply the task rules (Python work that
+        overlaps with the other threads' physics)."""
         try:
             fs, clock, cost, blown = self.frame_skip, time.perf_counter, self._cost, self._blown
             sims, gather, kin = self._sims, self._featurizer.gather, self._kinematics
             reward, term, sq = self._reward, self._term, self._sq
             qpos_w, qvel_w, qacc_w = (int(w) for w in BLOWUP_WARNINGS)
             step = mujoco.mj_step
-            take, finish = queue.take, queue.finish
-            while (i := take(limit)) >= 0:
+            while (i := take()) >= 0:
                 s = sims[i]
                 m, d = s.model, s.data
                 s.ctrl[:] = ctrl[s.ctrl_slice]
@@ -210,7 +241,6 @@ class ThreadedPhysics:
                 else:
                     gather(i, d)
                 reward[i], term[i] = s.rules.step(d, sq[i])
-                finish()
         except BaseException as e:
             if isinstance(e, mujoco.FatalError):
                 e = physics_error(s.robot, s.model, e)
@@ -247,14 +277,12 @@ class ThreadedPhysics:
         threads = self._threads_now()
         t0 = time.perf_counter()
         if threads > 1 and len(items) > 1:
-            # Helpers leave the cheapest few sub-envs (queued last) to this thread, so that it
-            # is usually the one to finish and need not wait to be woken up; and it never waits
-            # for a helper that has not started (under CPU contention it just does all the work).
-            limit = len(items) - self._reserve
             for _ in range(threads - 1):
-                self._pool.submit(self._work, queue, ctrl, limit)
-        self._work(queue, ctrl, len(items))
-        queue.wait()
+                self._pool.submit(self._help, queue, ctrl)
+        try:
+            self._work(queue, ctrl, queue.take_last)
+        finally:
+            queue.close()
         if self._auto:
             self._times[threads].append(time.perf_counter() - t0)
         self.thread_use[threads] += 1
