@@ -155,6 +155,13 @@ def test_compiled_code_is_cached_in_the_users_cache_folder(monkeypatch, tmp_path
     monkeypatch.delenv("XDG_CACHE_HOME")
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     assert inductor_cache_dir(recipe.compile) == tmp_path / "home/.cache/gcnt/inductor"
+    # importing torch._dynamo writes inductor's /tmp default into the variable: not the user's
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", default_cache_dir())
+    assert inductor_cache_dir(recipe.compile) == tmp_path / "home/.cache/gcnt/inductor"
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path / "mine"))
+    assert inductor_cache_dir(recipe.compile) == tmp_path / "mine"
 
     # compiling sets it for inductor (which would otherwise use /tmp/torchinductor_<user>),
     # and the first call's time is logged

@@ -38,11 +38,17 @@ log = logging.getLogger(__name__)
 def inductor_cache_dir(config: CompileConfig) -> Path:
     """Where compiled code is cached: ``compile.cache_dir``, else ``$TORCHINDUCTOR_CACHE_DIR``
     when the user set it, else ``$XDG_CACHE_HOME/gcnt/inductor`` (``~/.cache/gcnt/inductor``);
-    never inductor's own default, a folder under the shared ``/tmp``."""
+    never inductor's own default, a folder under the shared ``/tmp``. Importing
+    ``torch._dynamo`` (which torchrl does) writes that default into
+    ``$TORCHINDUCTOR_CACHE_DIR`` itself, so the variable holding exactly inductor's default counts
+    as unset."""
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
     if config.cache_dir:
         return Path(config.cache_dir).expanduser()
-    if os.environ.get("TORCHINDUCTOR_CACHE_DIR"):
-        return Path(os.environ["TORCHINDUCTOR_CACHE_DIR"])
+    users = os.environ.get("TORCHINDUCTOR_CACHE_DIR")
+    if users and Path(users) != Path(default_cache_dir()):
+        return Path(users)
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "gcnt" / "inductor"
 
