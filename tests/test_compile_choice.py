@@ -9,7 +9,7 @@ import yaml
 
 from gcnt.recipes import CompileConfig, RecipeError, load_recipe, recipe_from_dict
 from gcnt.rl.accelerate import choose_compile, compile_step
-from gcnt.rl.td3.learner import COMPILE_BREAK_EVEN, resolve_compile
+from gcnt.rl.td3.learner import COMPILE_BREAK_EVEN, one_update_thread, resolve_compile
 
 ROOT = Path(__file__).parents[1]
 QUICK = ROOT / "recipes/quickstart.yaml"
@@ -48,7 +48,10 @@ def test_the_quick_start_stays_eager_and_long_runs_compile():
     assert quick.compile.compile == "auto"  # the recipe given keeps its reading
     # the paper's 10M steps on Walker++ (6 robots in its train split: any count compiles)
     paper = load_recipe(PAPER)
-    assert resolve_compile(paper, 6)[0].compile.compile is True
+    run, why = resolve_compile(paper, 6)
+    assert run.compile.compile is True
+    # on 2 to 4 cores the compiled update has one thread against eager's two critic threads
+    assert ("compile.compile=false" in why) == one_update_thread(paper)
     # study 1's Walker++ runs (4 robots) stay eager at their 12,000 steps, compile at 100,000
     study = load_recipe(STUDY)
     assert resolve_compile(study, 4)[0].compile.compile is False

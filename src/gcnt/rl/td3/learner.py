@@ -427,11 +427,23 @@ def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
         c.planned_updates(recipe.collector.total_frames, num_robots),
         COMPILE_BREAK_EVEN[c.schedule],
     )
+    if compiled and recipe.compile.compile != compiled and one_update_thread(recipe):
+        why += f"; {ONE_THREAD_CAVEAT}"
     if compiled is recipe.compile.compile:
         return recipe, why
     run = copy.copy(recipe)
     run.compile = dataclasses.replace(recipe.compile, compile=compiled)
     return run, why
+
+
+#: what ``compile.compile: auto`` adds when it compiles on a CPU with 2 to 4 cores: the compiled
+#: update runs on one torch thread where the eager one runs its twin critics on two threads, and
+#: on an idle 2-core Xeon Walker++ at the paper's sizes updated 1.25x slower compiled (0.57-0.80x
+#: eager at the quick start's and study 1's sizes; docs/performance.md)
+ONE_THREAD_CAVEAT = (
+    "compiled on one torch thread, where the eager critics run on two: on an idle machine a "
+    "large network (the paper's sizes) can update faster eagerly (compile.compile=false)"
+)
 
 
 def one_update_thread(recipe: Recipe) -> bool:
