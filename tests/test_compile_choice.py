@@ -52,6 +52,9 @@ def test_the_quick_start_stays_eager_and_long_runs_compile():
     assert run.compile.compile is True
     # on 2 to 4 cores the compiled update has one thread against eager's two critic threads
     assert ("compile.compile=false" in why) == one_update_thread(paper)
+    # eager's critics on one thread (twin_threads=false): nothing to warn of
+    one = load_recipe(PAPER, ["compile.twin_threads=false"])
+    assert "compile.compile=false" not in resolve_compile(one, 6)[1]
     # study 1's Walker++ runs (4 robots) stay eager at their 12,000 steps, compile at 100,000
     study = load_recipe(STUDY)
     assert resolve_compile(study, 4)[0].compile.compile is False

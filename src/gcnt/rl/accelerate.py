@@ -42,10 +42,10 @@ def inductor_cache_dir(config: CompileConfig) -> Path:
     ``torch._dynamo`` (which torchrl does) writes that default into
     ``$TORCHINDUCTOR_CACHE_DIR`` itself, so the variable holding exactly inductor's default counts
     as unset."""
-    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
-
     if config.cache_dir:
         return Path(config.cache_dir).expanduser()
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
     users = os.environ.get("TORCHINDUCTOR_CACHE_DIR")
     if users and Path(users) != Path(default_cache_dir()):
         return Path(users)

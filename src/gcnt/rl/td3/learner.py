@@ -427,7 +427,9 @@ def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
         c.planned_updates(recipe.collector.total_frames, num_robots),
         COMPILE_BREAK_EVEN[c.schedule],
     )
-    if compiled and recipe.compile.compile != compiled and one_update_thread(recipe):
+    auto = recipe.compile.compile == "auto"
+    # eager would run the twin critics on two threads (twin.make_pair_runner's automatic choice)
+    if compiled and auto and recipe.compile.twin_threads is None and one_update_thread(recipe):
         why += f"; {ONE_THREAD_CAVEAT}"
     if compiled is recipe.compile.compile:
         return recipe, why
