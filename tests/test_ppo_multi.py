@@ -229,7 +229,8 @@ def test_worker_envs_must_split_the_iterations_frames(tmp_path: Path):
 @pytest.mark.slow
 def test_each_worker_steps_worker_envs_envs(tmp_path: Path):
     """ppo.worker_envs: each worker steps that many envs (here the whole num_envs), fewer steps
-    each; an iteration holds the same frames, as workers x worker_envs trajectories."""
+    each; an iteration holds the same frames, as workers x worker_envs trajectories. The update
+    keeps the process's torch threads (torchrl's collector would lower them by the workers)."""
     from gcnt.rl.loop import train
 
     recipe = tiny_recipe(tmp_path / "w", collector="multi", workers=2, worker_envs=4)
@@ -242,15 +243,18 @@ def test_each_worker_steps_worker_envs_envs(tmp_path: Path):
     original = ppo_learner.PPOLearner.learn
 
     def spy(self, data):
-        seen.append(tuple(data.shape))
+        seen.append((tuple(data.shape), torch.get_num_threads()))
         return original(self, data)
 
     ppo_learner.PPOLearner.learn = spy
+    threads = torch.get_num_threads()
+    torch.set_num_threads(3)  # more than the 2 workers, on any machine
     try:
         train(recipe, run)
     finally:
         ppo_learner.PPOLearner.learn = original
-    assert seen == [(8, 10)]
+        torch.set_num_threads(threads)
+    assert seen == [((8, 10), 3)]
     assert run.read_metrics()
 
 
