@@ -67,6 +67,41 @@ def test_metrics_are_strict_json_and_read_back_as_nan(tmp_path):
     assert math.isnan(Run(tmp_path).metrics()[0]["loss_actor"])
 
 
+def test_what_training_wrote_after_the_checkpoint_is_set_aside_on_resume(tmp_path):
+    """Evaluations and videos of steps past the checkpoint go to superseded/ (never over one
+    already there), where the analyses do not read them; others stay; a superseded/ that is a
+    link is refused and nothing moves."""
+    from gcnt.analysis.runs import Run
+    from gcnt.rl.run_dir import RunDir, RunDirError
+
+    run = RunDir(tmp_path / "run")
+    (run.path / "eval" / "superseded").mkdir(parents=True)
+    (run.path / "videos").mkdir()
+    (run.path / "recipe.yaml").write_text("seed: 0\n")
+    for name in ("step10.json", "step30.json", "test-30.json", "superseded/step30.json"):
+        (run.path / "eval" / name).write_text('{"env_steps": 1, "robots": {}}')
+    (run.path / "videos" / "step30.mp4").write_bytes(b"video")
+    moved = run.set_aside_after(20)
+    assert [p.relative_to(run.path).as_posix() for p in moved] == [
+        "eval/superseded/step30.1.json",
+        "videos/superseded/step30.mp4",
+    ]
+    assert sorted(p.name for p in (run.path / "eval").glob("*.json")) == [
+        "step10.json",
+        "test-30.json",
+    ]
+    assert sorted(e.path.name for e in Run(run.path).evals()) == ["step10.json", "test-30.json"]
+    assert run.set_aside_after(20) == []
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (run.path / "videos" / "superseded").rename(tmp_path / "kept")
+    (run.path / "videos" / "superseded").symlink_to(outside)
+    (run.path / "videos" / "step40.mp4").write_bytes(b"video")
+    with pytest.raises(RunDirError, match="a link"):
+        run.set_aside_after(20)
+    assert (run.path / "videos" / "step40.mp4").exists() and not any(outside.iterdir())
+
+
 @pytest.fixture
 def stochastic_run(tmp_path):
     """A run directory whose recipe evaluates with sampled actions (as UNIMAL's recipes do)."""

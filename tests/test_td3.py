@@ -207,9 +207,13 @@ def test_resume_continues_the_step_count_and_metrics(tmp_path):
     first = run.read_metrics()
     state = run.load_checkpoint()
     assert state["env_steps"] == 90
-    # a metrics line written after the checkpoint (the run died later) is dropped on resume
+    # a metrics line written after the checkpoint (the run died later) is dropped on resume, and
+    # an evaluation of that stretch is set aside
     run.log_metrics({"env_steps": 105, "updates": 0})
+    (run_dir / "eval" / "step105.json").write_text('{"env_steps": 105, "robots": {}}')
     assert gcnt(["train", "--resume", str(run_dir), "collector.total_frames=150"]) == 0
+    assert (run_dir / "eval" / "superseded" / "step105.json").exists()
+    assert not (run_dir / "eval" / "step105.json").exists()
     rows = run.read_metrics()
     assert rows[: len(first)] == first
     assert [r["env_steps"] for r in rows[len(first) :]] == [120, 150]

@@ -494,8 +494,9 @@ def log_summary(
 
 
 def resume_checkpoint(run: RunDir, algo: Algorithm) -> int:
-    """Load the run's checkpoint into ``algo`` (learner state, global RNG state, buffers) and
-    drop the metrics rows logged after it; returns its env steps."""
+    """Load the run's checkpoint into ``algo`` (learner state, global RNG state, buffers), drop
+    the metrics rows logged after it and set aside the evaluations and videos written after it
+    (:meth:`RunDir.set_aside_after`); returns its env steps."""
     state = run.load_checkpoint()
     try:
         algo.load_state_dict(state["learner"])
@@ -515,6 +516,8 @@ def resume_checkpoint(run: RunDir, algo: Algorithm) -> int:
     if state.get("has_buffers"):
         algo.load_buffers(run.buffers_dir)
     run.truncate_metrics(env_steps)
+    for path in run.set_aside_after(env_steps):
+        log.info("written after the checkpoint, set aside: %s", path)
     log.info("resuming %s at %d env steps, %d updates", run.path, env_steps, algo.updates)
     return env_steps
 

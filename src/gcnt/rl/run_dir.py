@@ -41,6 +41,9 @@ log = logging.getLogger(__name__)
 RECIPE_FILE = "recipe.yaml"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINT = "checkpoints/last.pt"
+#: the folder inside ``eval/`` and ``videos/`` for what a resumed run repeats (see
+#: :meth:`RunDir.set_aside_after`)
+SUPERSEDED = "superseded"
 #: what gcnt writes into inside a run directory: folders, and the log it appends to
 WRITTEN = ("checkpoints", "eval", "videos", "wandb", "csv", "figures", METRICS_FILE)
 
@@ -223,6 +226,42 @@ class RunDir:
         rows = [r for r in self.read_metrics() if r.get("env_steps", 0) <= env_steps]
         with _writing(self.metrics_path, "the metrics"):
             write_text(self.metrics_path, "".join(metrics_line(r) for r in rows))
+
+    def set_aside_after(self, env_steps: int) -> list[Path]:
+        """Move what training wrote after ``env_steps`` besides metrics rows (``eval/step<N>.json``
+        and ``videos/step<N>.mp4`` with N > ``env_steps``: a stretch of training that a resumed run
+        repeats from its checkpoint, along another trajectory) into ``superseded/`` beside them,
+        where no analysis reads them; returns their new paths."""
+        moved = []
+        for folder, suffix in (("eval", ".json"), ("videos", ".mp4")):
+            path = self.path / folder
+            if not path.is_dir():
+                continue
+            late = [
+                f
+                for f in path.iterdir()
+                if f.suffix == suffix
+                and f.stem.startswith("step")
+                and f.stem[4:].isdigit()
+                and int(f.stem[4:]) > env_steps
+            ]
+            if not late:
+                continue
+            self.inside(folder)
+            aside = path / SUPERSEDED
+            if aside.is_symlink():
+                raise RunDirError(
+                    f"{aside}: a link; gcnt writes only inside {self.path} (remove it)"
+                )
+            with _writing(aside, "what training wrote after the checkpoint"):
+                aside.mkdir(exist_ok=True)
+                for f in sorted(late):
+                    target, n = aside / f.name, 1
+                    while target.exists() or target.is_symlink():
+                        target, n = aside / f"{f.stem}.{n}{f.suffix}", n + 1
+                    rename(f, target)
+                    moved.append(target)
+        return moved
 
     # --- checkpoints
     def save_checkpoint(self, state: dict[str, Any]) -> None:
