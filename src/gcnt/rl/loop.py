@@ -442,7 +442,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
             "--video)", run.path, env_steps, total, run.path,
         )  # fmt: skip
         env.close()
-        if _eval_path(run, env_steps).exists():  # its final evaluation is kept as it is
+        if run.step_file("eval", env_steps).exists():  # its final evaluation is kept as it is
             finish(recipe, run, algo, logger, env_steps, evaluate_now=False)
             return run
     train_s = time.perf_counter() - t0
@@ -834,10 +834,6 @@ def _eval_specs(recipe: Recipe) -> list[str]:
     return recipe.eval.robots or [*recipe.env.robots, *recipe.env.test_robots]
 
 
-def _eval_path(run: RunDir, env_steps: int) -> Path:
-    return run.eval_dir() / f"step{env_steps}.json"
-
-
 def _evaluate(
     recipe: Recipe, run: RunDir, algo: Algorithm, logger, env_steps: int
 ) -> dict[str, dict] | None:
@@ -853,7 +849,7 @@ def _evaluate(
         deterministic=recipe.eval.deterministic,
     )
     path = write_eval(
-        _eval_path(run, env_steps),
+        run.step_file("eval", env_steps),
         results,
         env_steps,
         meta={
@@ -866,7 +862,7 @@ def _evaluate(
         logger.add(env_steps, {f"eval_return/{name}": res["mean"] for name, res in results.items()})
     log.info("eval at %d steps written to %s", env_steps, Path(path))
     if recipe.eval.video:
-        out = render_policy(recipe, policy, run.inside("videos") / f"step{env_steps}.mp4")
+        out = render_policy(recipe, policy, run.step_file("videos", env_steps))
         log.info("video written to %s", out)
         if logger is not None:
             logger.add_video(env_steps, out)

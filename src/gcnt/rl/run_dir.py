@@ -41,8 +41,9 @@ log = logging.getLogger(__name__)
 RECIPE_FILE = "recipe.yaml"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINT = "checkpoints/last.pt"
-#: the folder inside ``eval/`` and ``videos/`` for what a resumed run repeats (see
-#: :meth:`RunDir.set_aside_after`)
+#: what training writes at an env step, ``<folder>/step<N><suffix>``: folder -> suffix
+STEP_FILES = {"eval": ".json", "videos": ".mp4"}
+#: the folder inside those for what a resumed run repeats (:meth:`RunDir.set_aside_after`)
 SUPERSEDED = "superseded"
 #: what gcnt writes into inside a run directory: folders, and the log it appends to
 WRITTEN = ("checkpoints", "eval", "videos", "wandb", "csv", "figures", METRICS_FILE)
@@ -227,35 +228,29 @@ class RunDir:
         with _writing(self.metrics_path, "the metrics"):
             write_text(self.metrics_path, "".join(metrics_line(r) for r in rows))
 
+    def step_file(self, folder: str, env_steps: int) -> Path:
+        """Training's evaluation (``eval``) or video (``videos``) at ``env_steps``."""
+        return self.inside(folder) / f"step{env_steps}{STEP_FILES[folder]}"
+
     def set_aside_after(self, env_steps: int) -> list[Path]:
-        """Move what training wrote after ``env_steps`` besides metrics rows (``eval/step<N>.json``
-        and ``videos/step<N>.mp4`` with N > ``env_steps``: a stretch of training that a resumed run
-        repeats from its checkpoint, along another trajectory) into ``superseded/`` beside them,
-        where no analysis reads them; returns their new paths."""
+        """Move the :meth:`step_file` files of steps past ``env_steps`` (a stretch of training
+        that a resumed run repeats from its checkpoint, along another trajectory) into
+        ``superseded/`` beside them, where no analysis reads them, never over a file there;
+        returns their new paths."""
         moved = []
-        for folder, suffix in (("eval", ".json"), ("videos", ".mp4")):
-            path = self.path / folder
-            if not path.is_dir():
-                continue
-            late = [
+        for folder, suffix in STEP_FILES.items():
+            path = self.inside(folder)
+            late = sorted(
                 f
-                for f in path.iterdir()
-                if f.suffix == suffix
-                and f.stem.startswith("step")
-                and f.stem[4:].isdigit()
-                and int(f.stem[4:]) > env_steps
-            ]
+                for f in (path.glob(f"step*{suffix}") if path.is_dir() else ())
+                if f.stem[4:].isdigit() and int(f.stem[4:]) > env_steps
+            )
             if not late:
                 continue
-            self.inside(folder)
-            aside = path / SUPERSEDED
-            if aside.is_symlink():
-                raise RunDirError(
-                    f"{aside}: a link; gcnt writes only inside {self.path} (remove it)"
-                )
+            aside = self.inside(f"{folder}/{SUPERSEDED}")
             with _writing(aside, "what training wrote after the checkpoint"):
                 aside.mkdir(exist_ok=True)
-                for f in sorted(late):
+                for f in late:
                     target, n = aside / f.name, 1
                     while target.exists() or target.is_symlink():
                         target, n = aside / f"{f.stem}.{n}{f.suffix}", n + 1
