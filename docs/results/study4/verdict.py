@@ -2,70 +2,56 @@
 
     python docs/results/study4/verdict.py $STUDIES/study4
 
-Primary: each seed's mean exploring return (``train_return/mean`` in ``metrics.jsonl``) over the
-rows of its last 100,000 env steps; GCNT against SMP by a two-sided Welch t-test, alpha = 0.05.
-Secondary, each with its own Welch test: the last periodic evaluation on the 4 training robots,
-and zero-shot on walker_3_main and walker_6_main (``eval/test-*.json``).
+Primary: each seed's mean exploring return (``train_return/mean``) over the logged rows of its
+last 100,000 env steps; GCNT against SMP by a two-sided Welch t-test, alpha = 0.05. Secondary,
+each with its own Welch test: the last periodic evaluation on the training robots, and zero-shot
+on each test robot (the ``gcnt sweep --eval test`` files).
 """
 
-import json
 import statistics as st
 import sys
-from pathlib import Path
 
 from scipy import stats
 
-TRAIN = ["walker_2_main", "walker_4_main", "walker_5_main", "walker_7_main"]
-METHODS = ("gcnt", "smp")
+from gcnt.analysis.runs import find_runs
+from gcnt.run_data import Run
+
+WINDOW = 100_000
 
 
-def primary(run: Path) -> float:
-    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
-    end = rows[-1]["env_steps"]
-    window = [
-        r["train_return/mean"]
-        for r in rows
-        if r["env_steps"] > end - 100_000 and "train_return/mean" in r
-    ]
-    return st.mean(window)
-
-
-def last_eval(run: Path) -> float:
-    last = max((run / "eval").glob("step*.json"), key=lambda p: int(p.stem[4:]))
-    robots = json.loads(last.read_text())["robots"]
-    return st.mean(robots[k]["mean"] for k in TRAIN)
-
-
-def zero_shot(run: Path) -> dict[str, float]:
-    [test] = (run / "eval").glob("test-*.json")
-    return {k: v["mean"] for k, v in json.loads(test.read_text())["robots"].items()}
-
-
-def welch(name: str, values: dict[str, list[float]]) -> None:
-    g, s = values["gcnt"], values["smp"]
-    t = stats.ttest_ind(g, s, equal_var=False)
-    se = {m: st.stdev(v) / len(v) ** 0.5 for m, v in values.items()}
-    print(
-        f"{name}: GCNT {st.mean(g):.1f} ± {se['gcnt']:.1f}, SMP {st.mean(s):.1f} ± {se['smp']:.1f} "
-        f"(mean ± s.e.); Welch t = {t.statistic:.3f}, df = {t.df:.2f}, p = {t.pvalue:.4f}"
+def measures(run: Run) -> dict[str, float]:
+    rows = [r for r in run.metrics() if "train_return/mean" in r]
+    end = run.last_env_steps()
+    out = {
+        "primary (last-100k exploring return)": st.mean(
+            r["train_return/mean"] for r in rows if r["env_steps"] > end - WINDOW
+        )
+    }
+    evals = run.evals()
+    last = max((e for e in evals if e.label == ""), key=lambda e: e.env_steps)
+    out["final evaluation, training robots"] = st.mean(
+        last.robots[name]["mean"] for name in run.train_robot_names()
     )
+    [test] = [e for e in evals if e.label == "test"]
+    out.update({f"zero-shot {name}": v["mean"] for name, v in test.robots.items()})
+    return out
 
 
-def main(sweep: Path) -> None:
-    runs = {m: sorted((sweep / "study4-walkerpp" / f"td3-{m}").glob("seed*")) for m in METHODS}
-    measures: dict[str, dict[str, list[float]]] = {}
-    for m, rs in runs.items():
-        for run in rs:
-            row = {
-                "primary (last-100k exploring return)": primary(run),
-                "final evaluation, training robots": last_eval(run),
-            }
-            row.update({f"zero-shot {k}": v for k, v in zero_shot(run).items()})
-            for k, v in row.items():
-                measures.setdefault(k, {n: [] for n in METHODS})[m].append(v)
-    for name, values in measures.items():
-        welch(name, values)
+def main(sweep: str) -> None:
+    values: dict[str, dict[str, list[float]]] = {}
+    for run in find_runs([sweep]):
+        for name, v in measures(run).items():
+            values.setdefault(name, {}).setdefault(run.method, []).append(v)
+    for name, by_method in values.items():
+        g, s = by_method["gcnt"], by_method["smp"]
+        t = stats.ttest_ind(g, s, equal_var=False)
+        print(
+            f"{name}: GCNT {st.mean(g):.1f} ± {st.stdev(g) / len(g) ** 0.5:.1f}, "
+            f"SMP {st.mean(s):.1f} ± {st.stdev(s) / len(s) ** 0.5:.1f} (mean ± s.e., "
+            f"{len(g)} + {len(s)} seeds); Welch t = {t.statistic:.3f}, df = {t.df:.2f}, "
+            f"p = {t.pvalue:.4f}"
+        )
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(sys.argv[1])
