@@ -149,3 +149,50 @@ def robot_table(
         },
         batch_size=[n],
     )
+
+
+#: the limb axes of each static key (the table's axis numbers, robot axis 0): what
+#: :func:`trim_table` cuts; ``graph/wl`` has none
+LIMB_AXES: dict[tuple[str, str], tuple[int, ...]] = {
+    K.MASK: (1,),
+    K.TYPE: (1,),
+    K.ACTION_MASK: (1,),
+    K.CONTEXT: (1,),
+    K.ADJ: (1, 2),
+    K.DIST: (1, 2),
+    K.WL: (),
+    K.PARENT: (1,),
+    K.TRAVERSAL: (1,),
+    K.PPR: (1, 2),
+    K.LAPLACIAN: (1, 2),
+}
+
+
+def trim_rows(sizes: Sequence[int], limbs: int) -> list[int] | None:
+    """Which row stands for each robot in a table cut to its first ``limbs`` slots: the robot
+    itself where it has at most ``limbs`` limbs, else the first robot that fits (a robot cut
+    short would be a different, possibly inconsistent graph: its row is replaced so that every
+    row of the cut table is a whole robot, and only the fitting robots' rows are ever read);
+    None when no robot fits."""
+    fits = [i for i, s in enumerate(sizes) if s <= limbs]
+    if not fits:
+        return None
+    return [i if s <= limbs else fits[0] for i, s in enumerate(sizes)]
+
+
+def trim_table(table: dict, rows: Sequence[int] | None, limbs: int) -> dict:
+    """``table`` (static key -> [R, K, ...] tensor) cut to its first ``limbs`` limb slots on
+    every limb axis (:data:`LIMB_AXES`), with the rows :func:`trim_rows` chose (``None``: every
+    row as it is). Real limbs come first in every row (:func:`robot_table`), so a robot with at
+    most ``limbs`` limbs keeps every real value; only padding is dropped."""
+    out = {}
+    index = None
+    for key, value in table.items():
+        if rows is not None and list(rows) != list(range(value.shape[0])):
+            if index is None or index.device != value.device:
+                index = torch.tensor(list(rows), device=value.device)
+            value = value.index_select(0, index)
+        for axis in LIMB_AXES.get(key, ()):
+            value = value.narrow(axis, 0, limbs)
+        out[key] = value
+    return out

@@ -76,6 +76,8 @@ class GraphLookup(TensorDictModuleBase):
         self.robot_names: tuple[str, ...] | None = None
         self.num_robots = 0
         self.num_limbs = 0
+        #: each robot's real limbs (read on the host once per table)
+        self.limb_counts: tuple[int, ...] = ()
         self.set_table(table, robot_names=robot_names)
 
     def set_table(
@@ -120,6 +122,7 @@ class GraphLookup(TensorDictModuleBase):
         self.robot_names = tuple(robot_names) if robot_names is not None else None
         self.num_robots = int(mask.shape[0])
         self.num_limbs = int(mask.shape[-1])
+        self.limb_counts = tuple(int(s) for s in sizes)
         return self
 
     def _device(self) -> torch.device:

@@ -70,6 +70,10 @@ class NetworkEntry:
     #: its input size is fixed by the padded limb count it was built for (SR's flat MLP): it
     #: cannot run robots with more limbs than the table it was trained on
     fixed_limbs: bool = False
+    #: its outputs on a robot's real limbs do not depend on how many padded slots follow them
+    #: (no per-slot parameters, no dropout): a batch of one robot may run at the robot's own
+    #: size (``td3.trim_padding``; tests/test_td3_trim.py checks every built-in that claims it)
+    padding_free: bool = False
 
 
 NETWORKS: dict[str, NetworkEntry] = {}
@@ -84,6 +88,7 @@ def register_network(
     description: str = "",
     replace: bool = False,
     fixed_limbs: bool = False,
+    padding_free: bool = False,
 ) -> NetworkEntry:
     """Make method ``name`` available to :func:`make_network` (``replace`` to redefine one).
 
@@ -103,7 +108,7 @@ def register_network(
         raise ValueError(f"network {name!r} is already registered (pass replace=True)")
     fixed = dict(fixed or {})
     config.check_overrides(fixed)
-    entry = NetworkEntry(config, build, fixed, description, fixed_limbs)
+    entry = NetworkEntry(config, build, fixed, description, fixed_limbs, padding_free)
     NETWORKS[name] = entry
     return entry
 
@@ -117,16 +122,27 @@ def unregister_network(name: str) -> None:
     del NETWORKS[name]
 
 
-register_network("gcnt", GCNTConfig, gcnt_backbone, description="GCNT")
-register_network("gcnt_no_gcn", GCNTConfig, gcnt_backbone, fixed={"use_gcn": False})
-register_network("gcnt_no_wl", GCNTConfig, gcnt_backbone, fixed={"use_wl": False})
-register_network("gcnt_no_dist", GCNTConfig, gcnt_backbone, fixed={"use_dist_bias": False})
+register_network("gcnt", GCNTConfig, gcnt_backbone, description="GCNT", padding_free=True)
+register_network(
+    "gcnt_no_gcn", GCNTConfig, gcnt_backbone, fixed={"use_gcn": False}, padding_free=True
+)
+register_network(
+    "gcnt_no_wl", GCNTConfig, gcnt_backbone, fixed={"use_wl": False}, padding_free=True
+)
+register_network(
+    "gcnt_no_dist",
+    GCNTConfig,
+    gcnt_backbone,
+    fixed={"use_dist_bias": False},
+    padding_free=True,
+)
 register_network(
     "gcnt_dist_first",
     GCNTConfig,
     gcnt_backbone,
     fixed={"dist_bias_layers": "first"},
     description="GCNT, distance bias in the first layer only",
+    padding_free=True,
 )
 register_network(
     "gcnt_hn", GCNTConfig, gcnt_backbone, fixed={"hypernet": True}, description="GCNT+HN"
@@ -138,9 +154,11 @@ register_network(
     fixed={"gcn_input": "context"},
     description="GCNT, GCN on the limb context",
 )
-register_network("amorpheus", AmorpheusConfig, amorpheus_backbone, description="AMORPHEUS")
+register_network(
+    "amorpheus", AmorpheusConfig, amorpheus_backbone, description="AMORPHEUS", padding_free=True
+)
 register_network("swat", SWATConfig, swat_backbone, description="SWAT")
-register_network("smp", SMPConfig, smp_backbone, description="SMP")
+register_network("smp", SMPConfig, smp_backbone, description="SMP", padding_free=True)
 register_network("metamorph", MetaMorphConfig, metamorph_backbone, description="MetaMorph")
 register_network(
     "metamorph_star",
@@ -148,6 +166,7 @@ register_network(
     metamorph_backbone,
     fixed={"position_embedding": False, "embed_dropout": 0.0},
     description="MetaMorph*",
+    padding_free=True,
 )
 register_network("modumorph", ModuMorphConfig, modumorph_backbone, description="ModuMorph")
 register_network(

@@ -400,7 +400,7 @@ def _train(recipe: Recipe, run: RunDir, resume: bool, prepared: Prepared | None)
                 watch = worker_watch(collector, run, waiting=waiting)
                 with watch if multi else contextlib.nullcontext():
                     for data in waiting.batches(collector):
-                        data = algo.admit(data)  # the steps the run keeps and counts
+                        data = algo.admit(data)  # the steps the run counts (it may store more)
                         env_steps += data.numel()
                         stats.add_episodes(data)
                         row = after_update(

@@ -31,12 +31,24 @@ class TD3Config:
     #: lockstep steps per collector batch (in both schedules; "paper" checks for finished
     #: robots at these boundaries)
     steps_per_batch: int = 50
-    #: which steps of a "paper" round are stored and counted. "first_episode": each sub-env's
-    #: steps until its first episode of the round ends; the steps it takes while it waits for
-    #: the others are neither stored nor counted, and every sub-env starts the next round with a
-    #: new episode (the original main.py files: a finished env waits, and all reset together).
-    #: "all": every step of the round (finished sub-envs go on with new episodes)
-    round_steps: Literal["first_episode", "all"] = "first_episode"
+    #: which steps of a "paper" round are counted and stored. "store_all_count_first": each
+    #: sub-env's steps until its first episode of the round ends are counted; a sub-env that
+    #: finished goes on stepping (new episodes) while the others finish, and those steps are
+    #: stored but not counted; every sub-env starts the next round with a new episode (the
+    #: SWAT/AMORPHEUS main.py over baselines' SubprocVecEnv, whose worker resets a finished env
+    #: itself). "first_episode": as that, but the steps after the first episode are dropped.
+    #: "all": every step of the round counted and stored
+    round_steps: Literal["store_all_count_first", "first_episode", "all"] = "store_all_count_first"
+    #: how a "paper" round's updates are shared out among the robots. "mean": every robot gets
+    #: the mean of the robots' counted steps of the round (the originals' ``TD3.train``:
+    #: ``per_morph_iter = sum(iterations_list) // len(envs_train_names)``); "own": each robot
+    #: its own counted steps (robots that fall early get fewer updates)
+    round_updates: Literal["mean", "own"] = "mean"
+    #: a mini-batch of one robot (the "paper" schedule) at that robot's own limb count, not
+    #: padded to the largest robot's: the same losses and gradients (tested in float64) at fewer
+    #: FLOPs, for methods whose outputs do not depend on padding (``padding_free`` in the network
+    #: registry); false: every batch padded (to compare speeds)
+    trim_padding: bool = True
     #: std of the Gaussian exploration noise added to the actor's actions
     exploration_noise: float = 0.126
     # --- replay
@@ -90,8 +102,13 @@ class TD3Config:
         check_range(self, ">= 0 finite", "exploration_noise", "policy_noise", "noise_clip")
         if self.max_grad_norm != self.max_grad_norm or self.max_grad_norm == float("inf"):
             raise ValueError(f"max_grad_norm must be finite (<= 0: off), got {self.max_grad_norm}")
-        if self.round_steps not in ("first_episode", "all"):
-            raise ValueError(f"round_steps must be first_episode or all, got {self.round_steps!r}")
+        rounds = ("store_all_count_first", "first_episode", "all")
+        if self.round_steps not in rounds:
+            raise ValueError(
+                f"round_steps must be one of {', '.join(rounds)}, got {self.round_steps!r}"
+            )
+        if self.round_updates not in ("mean", "own"):
+            raise ValueError(f"round_updates must be mean or own, got {self.round_updates!r}")
         if self.random_counted not in ("per_robot", "total"):
             raise ValueError(
                 f"random_counted must be per_robot or total, got {self.random_counted!r}"
@@ -144,6 +161,7 @@ class TD3Config:
         "random_counted": "total",
         "update_during_random": False,
         "round_steps": "all",
+        "round_updates": "own",
     }
 
 

@@ -62,6 +62,7 @@ from gcnt.envs.stepper import usable_cpus
 from gcnt.keys import ACTION, HFIELD, LIMB_Q, MASK, MORPH_ID, OBS
 from gcnt.morphology import Robot
 from gcnt.nn.layers import as_dtype
+from gcnt.nn.registry import NETWORKS
 from gcnt.recipes import Recipe, RecipeError
 from gcnt.rl.accelerate import (
     accelerate,
@@ -224,9 +225,23 @@ class TD3Learner:
             )
         )
 
-    def _robots(self, ids: torch.Tensor):
+    def _robots(self, ids: torch.Tensor, batch: TensorDictBase):
+        """The batch's :class:`~gcnt.rl.td3.tensor_chain.RobotBatch`: the robot table cut to
+        the batch's limb slots where it holds fewer than the table (a batch of robots at their
+        own size, :meth:`TD3.store`)."""
         critic = self.f_critics[0] if self.pair else self.critics.chain
-        return self.f_actor.robot_batch(ids, critic)
+        return self.f_actor.robot_batch(ids, critic, limbs=batch.get(OBS).shape[-2])
+
+    def padded_noise(self, action: torch.Tensor) -> torch.Tensor:
+        """TD3's target-smoothing noise for ``action`` (:func:`target_noise`), drawn at the
+        table's padded size and cut to ``action``'s limb slots: a batch cut to its robot's own
+        size draws the random stream, and gets the values on its real limbs, that its padded
+        batch would."""
+        o, k = self.config, self.f_actor.lookup.num_limbs
+        if action.shape[-2] >= k:
+            return target_noise(action, o.policy_noise, o.noise_clip)
+        full = action.new_empty(*action.shape[:-2], k, action.shape[-1])
+        return target_noise(full, o.policy_noise, o.noise_clip).narrow(-2, 0, action.shape[-2])
 
     # ------------------------------------------------------------------ the two steps
     def _inputs(self, batch: TensorDictBase, next_step: bool) -> dict:
@@ -251,11 +266,11 @@ class TD3Learner:
         :attr:`twin`) and return the loss detached."""
         o = self.config
         ids = batch.get(MORPH_ID) if morph_id is None else morph_id
-        robots = self._robots(ids)
+        robots = self._robots(ids, batch)
         mask = robots.gathered(MASK)
         action = batch.get(ACTION)
         if noise is None:
-            noise = target_noise(action, o.policy_noise, o.noise_clip)
+            noise = self.padded_noise(action)
         with autocast(self.accel, self.device):
             with torch.no_grad():
                 nxt = self._inputs(batch, next_step=True)
@@ -294,7 +309,7 @@ class TD3Learner:
         """-Q1 of the actor's action on ``batch``, over real limbs (``morph_id``: as in
         :meth:`critic_loss`)."""
         ids = batch.get(MORPH_ID) if morph_id is None else morph_id
-        robots = self._robots(ids)
+        robots = self._robots(ids, batch)
         mask = robots.gathered(MASK)
         with autocast(self.accel, self.device):
             now = self._inputs(batch, next_step=False)
@@ -322,8 +337,7 @@ class TD3Learner:
     def _critic_step(self, batch: TensorDictBase) -> TensorDictBase:
         """One critic update on ``batch``; returns ``loss_critic``. The target-smoothing noise
         is drawn here, outside the compiled loss, so a compiled step draws what eager draws."""
-        o = self.config
-        noise = target_noise(batch.get(ACTION), o.policy_noise, o.noise_clip)
+        noise = self.padded_noise(batch.get(ACTION))
         loss = self.critic_forward(batch, noise)
         if not self.twin.parallel:
             loss.backward()
@@ -464,6 +478,20 @@ def one_update_thread(recipe: Recipe) -> bool:
     )
 
 
+def trims_padding(recipe: Recipe, learner: TD3Learner) -> bool:
+    """Whether one-robot batches run at their robot's own limb count: ``td3.trim_padding``, for
+    a method the registry declares ``padding_free`` and with no dropout (whose random draws
+    would differ with the batch's shape)."""
+    entry = NETWORKS.get(recipe.network.name)
+    return (
+        recipe.algo_config.trim_padding
+        and entry is not None
+        and entry.padding_free
+        and not has_dropout(learner.actor)
+        and not has_dropout(learner.critics)
+    )
+
+
 def stack_pair_adam(state: dict, num_params: int) -> dict:
     """An Adam state dict over two critics' parameters (critic 1's, then critic 2's: 2P
     tensors, as runs before the ensemble saved it) as the ensemble's: P stacked tensors, each
@@ -540,47 +568,81 @@ def loss_rows(losses: list[dict[str, torch.Tensor]]) -> list[dict[str, Any]]:
 class UpdateSchedule:
     """When to update and on what: yields the mini-batches of each update phase.
 
-    With ``rounds`` (the "paper" schedule with ``round_steps: first_episode``) it also keeps
-    which sub-envs finished their first episode of the round (:meth:`admit` drops what they
-    collect after it) and asks for a reset of every sub-env when a round ends."""
+    With ``rounds`` (the "paper" schedule with ``round_steps`` ``first_episode`` or
+    ``store_all_count_first``) it also keeps which sub-envs finished their first episode of the
+    round (:meth:`admit` counts only the steps up to it, and stores the rest or drops it), and
+    asks for a reset of every sub-env when a round ends. ``round_updates`` shares a round's
+    updates out among the robots: ``mean`` gives each the mean of the robots' counted steps
+    (the originals' ``per_morph_iter``), ``own`` each its own counted steps."""
 
-    def __init__(self, config: TD3Config, num_robots: int, num_envs: int = 0):
+    def __init__(
+        self,
+        config: TD3Config,
+        num_robots: int,
+        num_envs: int = 0,
+        limbs: Sequence[int] | None = None,
+    ):
         self.kind = config.schedule
+        #: each robot's limb count, when its one-robot batches are cut to it (``trim_padding``)
+        self.limbs = None if limbs is None else list(limbs)
         self.updates_per_step = config.updates_per_step
         self.pending = np.zeros(num_robots)  # transitions stored since the last update phase
+        self.counted = np.zeros(num_robots)  # steps counted since the last update phase
         self.finished = np.zeros(num_robots, dtype=bool)  # robot ended an episode since then
-        self.rounds = self.kind == "paper" and config.round_steps == "first_episode"
+        self.rounds = self.kind == "paper" and config.round_steps != "all"
+        #: the steps after a sub-env's first episode of the round are stored (not dropped)
+        self.store_after_first = config.round_steps == "store_all_count_first"
+        self.mean_updates = config.round_updates == "mean"
         self.env_done = np.zeros(num_envs, dtype=bool)  # sub-env ended an episode this round
         self.reset_due = False
 
-    def admit(self, data: TensorDictBase) -> TensorDictBase:
-        """``data`` [envs, steps] without the steps each sub-env took after its first episode
-        of the round ended (flat [kept]); all of it when not in ``rounds``."""
+    def admit(self, data: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:
+        """The steps of ``data`` [envs, steps] the run counts, and those it stores: in
+        ``rounds``, each sub-env's steps until its first episode of the round ended are counted
+        (flat [counted]), and they alone are stored, or (``store_after_first``) every step is;
+        otherwise ``data`` is both."""
         if not self.rounds:
-            return data
+            return data, data
         done = data["next", "done"].reshape(data.shape).cpu()
         after_first = (done.long().cumsum(-1) - done.long()) > 0  # after a done of this batch
         keep = ~(torch.from_numpy(self.env_done)[:, None] | after_first)
         self.env_done |= done.any(-1).numpy()
-        return data[keep.to(data.device)]
+        counted = data[keep.to(data.device)]
+        return counted, (data.reshape(-1) if self.store_after_first else counted)
 
-    def add(self, data: TensorDictBase) -> None:
-        morph = data[MORPH_ID]
-        self.pending += np.bincount(morph.reshape(-1).numpy(), minlength=len(self.pending))
-        self.finished[morph[data["next", "done"].squeeze(-1)].numpy()] = True
+    def add(self, stored: TensorDictBase, counted: TensorDictBase | None = None) -> None:
+        """Note a batch's stored transitions and its counted steps (``counted``: the stored
+        ones when not given). A robot has finished its round's episode when a counted step of
+        it ends one."""
+        counted = stored if counted is None else counted
+        r = len(self.pending)
+        self.pending += np.bincount(stored[MORPH_ID].reshape(-1).numpy(), minlength=r)
+        morph = counted[MORPH_ID]
+        self.counted += np.bincount(morph.reshape(-1).numpy(), minlength=r)
+        self.finished[morph[counted["next", "done"].squeeze(-1)].numpy()] = True
+
+    def robot_updates(self) -> list[int]:
+        """The updates of each robot when a round ends: ``updates_per_step`` times its own
+        counted steps, or (``mean_updates``) the robots' mean, floored as the originals'
+        ``sum(iterations) // robots``."""
+        if self.mean_updates:
+            each = int(self.counted.sum()) // len(self.counted)
+            return [round(each * self.updates_per_step)] * len(self.counted)
+        return [round(n * self.updates_per_step) for n in self.counted]
 
     def batches(self, replay: rb.RobotReplay, warm: bool) -> Iterator[TensorDictBase]:
         round_over = self.kind == "paper" and self.finished.all()
         if not warm:  # random exploration, or a buffer still smaller than a batch
-            self.pending[:] = 0
+            self._clear()
             if round_over and self.rounds:
                 self._end_round()
             return
         if round_over:
-            # each robot in turn, as many updates as it stored transitions, from its own ring
-            for robot, n in enumerate(self.pending):
-                for _ in range(round(n * self.updates_per_step)):
-                    yield replay.sample_robot(robot)
+            # each robot in turn, from its own ring (robot_updates: how many)
+            for robot, n in enumerate(self.robot_updates()):
+                limbs = None if self.limbs is None else self.limbs[robot]
+                for _ in range(n):
+                    yield replay.sample_robot(robot, limbs=limbs)
             self._end_round()
         elif self.kind == "mixed":
             # one padded batch holds batch_size transitions of every robot (one gather)
@@ -588,7 +650,11 @@ class UpdateSchedule:
                 yield replay.sample_mixed()
         else:
             return
+        self._clear()
+
+    def _clear(self) -> None:
         self.pending[:] = 0
+        self.counted[:] = 0
 
     def _end_round(self) -> None:
         self.finished[:] = False
@@ -599,12 +665,15 @@ class UpdateSchedule:
     def state_dict(self) -> dict[str, Any]:
         return {
             "pending": self.pending.tolist(),
+            "counted": self.counted.tolist(),
             "finished": self.finished.tolist(),
             "env_done": self.env_done.tolist(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.pending[:] = state["pending"]
+        # a checkpoint from before counted steps were kept apart: they were the stored ones
+        self.counted[:] = state.get("counted", state["pending"])
         self.finished[:] = state["finished"]
         if len(state.get("env_done", [])) == len(self.env_done):
             self.env_done[:] = state["env_done"]
@@ -643,8 +712,15 @@ class TD3(Algorithm):
         replay_device = recipe.device if recipe.compile.replay_on_device else "cpu"
         check_replay_memory(env, n, capacity, replay_device)  # allocated later: refuse it now
         self.replay = rb.RobotReplay(n, capacity, c.batch_size, device=replay_device)
-        self.schedule = UpdateSchedule(c, n, int(env.batch_size[0]))
+        trim = trims_padding(recipe, self.learner)
+        if trim and c.schedule == "paper":
+            self.choices.append(
+                "TD3 one-robot batches at each robot's own limb count (td3.trim_padding)"
+            )
+        limbs = [r.num_limbs for r in robots] if trim else None
+        self.schedule = UpdateSchedule(c, n, int(env.batch_size[0]), limbs)
         self.stored = 0
+        self._to_store: TensorDictBase | None = None  # admit()'s batch to store, for process()
         self._buffer_file: str | None = None  # the replay file the last loaded state names
 
     @property
@@ -670,26 +746,35 @@ class TD3(Algorithm):
         return CollectSettings(explore, fpb, random_left)
 
     def admit(self, data: TensorDictBase) -> TensorDictBase:
-        return self.schedule.admit(data)
+        # the steps counted; those stored besides them (round_steps: store_all_count_first)
+        # wait for process(), which gets the counted ones
+        counted, self._to_store = self.schedule.admit(data)
+        return counted
 
     def reset_due(self) -> bool:
         due, self.schedule.reset_due = self.schedule.reset_due, False
         return due
 
-    def store(self, data: TensorDictBase, env_steps: int) -> Iterator[TensorDictBase]:
-        """Store a collected batch; the mini-batches of the update phase the schedule then asks
+    def store(
+        self, data: TensorDictBase, env_steps: int, counted: TensorDictBase | None = None
+    ) -> Iterator[TensorDictBase]:
+        """Store a collected batch (``counted``: the steps of it the run counted, when not all
+        of them, :meth:`admit`); the mini-batches of the update phase the schedule then asks
         for (none while a robot holds fewer than a batch, nor during the random phase unless
         ``update_during_random``)."""
         c = self.config
         self.stored += self.replay.extend(data)
-        self.schedule.add(data)
+        self.schedule.add(data, counted)
         random_done = c.update_during_random or env_steps >= self.random_frames
         warm = random_done and int(self.replay.sizes.min()) >= c.batch_size
         return self.schedule.batches(self.replay, warm)
 
     def process(self, data: TensorDictBase, env_steps: int) -> Iterator[dict[str, float]]:
+        # ``data``: the counted steps (admit); the batch stored may hold more of the round
+        stored, self._to_store = self._to_store, None
+        batches = self.store(data if stored is None else stored, env_steps, counted=data)
         # the losses stay on the device during a phase: one synchronisation per phase
-        yield from loss_rows([self.learner.step(batch) for batch in self.store(data, env_steps)])
+        yield from loss_rows([self.learner.step(batch) for batch in batches])
 
     def resolved(self) -> dict[str, Any]:
         c, fpb = self.config, self._frames_per_batch()

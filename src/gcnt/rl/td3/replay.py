@@ -36,6 +36,9 @@ STORED_KEYS: tuple = (
 )
 #: kept too when the env emits them (height-map worlds)
 OPTIONAL_KEYS: tuple = (K.HFIELD, (K.NEXT, K.HFIELD))
+#: the stored keys with a limb axis (the one after the transition's): what a sample cut to its
+#: robot's own limbs narrows
+LIMB_KEYS: tuple = (K.OBS, K.ACTION, (K.NEXT, *K.OBS))
 
 
 def per_robot_capacity(num_robots: int, size_per_robot: int, total_size: int) -> int:
@@ -127,10 +130,18 @@ class RobotReplay:
         return n
 
     # ------------------------------------------------------------------ sampling
-    def _gather(self, index: torch.Tensor) -> TensorDictBase:
+    def _gather(self, index: torch.Tensor, limbs: int | None = None) -> TensorDictBase:
+        """The transitions at ``index``; ``limbs``: only the first ``limbs`` limb slots of the
+        per-limb keys (:data:`LIMB_KEYS`), gathered from the slots kept (no padding copied)."""
+
+        def cut(k, store: torch.Tensor) -> torch.Tensor:
+            if limbs is None or k not in LIMB_KEYS or limbs >= store.shape[1]:
+                return store
+            return store.narrow(1, 0, limbs)
+
         return TensorDict(
             {
-                k: store.index_select(0, index)
+                k: cut(k, store).index_select(0, index)
                 for k, store in zip(self.keys, self._flat, strict=True)
             },
             batch_size=index.shape,
@@ -142,12 +153,16 @@ class RobotReplay:
             empty = [int(r) for r in robots if int(self.sizes[r]) == 0]
             raise RuntimeError(f"RobotReplay: nothing stored yet for robot(s) {empty[:5]}")
 
-    def sample_robot(self, robot: int, batch_size: int | None = None) -> TensorDictBase:
-        """``batch_size`` transitions of one robot, uniformly with replacement (one randint)."""
+    def sample_robot(
+        self, robot: int, batch_size: int | None = None, limbs: int | None = None
+    ) -> TensorDictBase:
+        """``batch_size`` transitions of one robot, uniformly with replacement (one randint);
+        ``limbs``: cut to the robot's first ``limbs`` limb slots (its own size: the padding
+        dropped, see :meth:`gcnt.rl.td3.tensor_chain.TensorChain.robot_batch`)."""
         self._check(torch.tensor([robot]))
         b = batch_size or self.batch_size
         idx = torch.randint(int(self.sizes[robot]), (b,), device=self.device)
-        return self._gather(idx + robot * self.capacity)
+        return self._gather(idx + robot * self.capacity, limbs)
 
     def sample_mixed(self, batch_size: int | None = None) -> TensorDictBase:
         """``batch_size`` transitions of every robot, robot-major, flattened to [R * batch]

@@ -24,6 +24,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import Tensor, nn
 
+from gcnt.envs.robot_table import trim_rows, trim_table
 from gcnt.keys import MORPH_ID
 from gcnt.nn.graph_lookup import GraphLookup
 from gcnt.nn.graph_lookup import buffer_name as table_buffer_name
@@ -133,13 +134,28 @@ class TensorChain:
         follow the module's ``.to()`` and ``set_table`` (no TensorDict built: compile-friendly)."""
         return {k: getattr(self.lookup, name) for k, name in self._table_buffers}
 
-    def robot_batch(self, ids: Tensor, *others: TensorChain) -> RobotBatch:
+    def robot_batch(
+        self, ids: Tensor, *others: TensorChain, limbs: int | None = None
+    ) -> RobotBatch:
         """The :class:`RobotBatch` of samples with robots ``ids``, for this chain and ``others``
-        (the union of their tables: chains of one method and robot set share them)."""
+        (the union of their tables: chains of one method and robot set share them).
+
+        ``limbs``: the samples' limb slots, when fewer than the table's (a batch cut to its
+        robots' own size, :meth:`gcnt.rl.td3.replay.RobotReplay.sample_robot`): the table is
+        cut to match (:func:`~gcnt.envs.robot_table.trim_table`); every robot of ``ids`` must
+        have at most ``limbs`` limbs."""
         table = self.table()
         for other in others:
             for k, v in other.table().items():
                 table.setdefault(k, v)
+        if limbs is not None and limbs < self.lookup.num_limbs:
+            rows = trim_rows(self.lookup.limb_counts, limbs)
+            if rows is None:
+                raise ValueError(
+                    f"TensorChain: samples of {limbs} limb slots, but every robot of the table "
+                    f"has more ({self.lookup.limb_counts})"
+                )
+            table = trim_table(table, rows, limbs)
         return RobotBatch(table, ids.reshape(-1).long())
 
     def __call__(self, inputs: Mapping[Key, Tensor], robots: RobotBatch) -> dict[Key, Tensor]:
