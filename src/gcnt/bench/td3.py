@@ -47,12 +47,6 @@ from gcnt.bench.common import (
 )
 
 
-def fixed_batch(recipe):
-    """The env (closed) and one mini-batch shaped as ``recipe``'s schedule samples it."""
-    env, batches = robot_batches(recipe)
-    return env, batches[0]
-
-
 @contextlib.contextmanager
 def on_this_thread(learner):
     """The learner's twin critics in turn on the calling thread while inside (the same
@@ -85,47 +79,59 @@ def step_operators(learner, batch, device: str) -> dict:
     }
 
 
-def bare_update_rate(recipe, n_updates: int, rounds: int = 5) -> dict:
-    """Updates/s of the learner on one fixed mini-batch (median of ``rounds`` rounds), and in
-    alternate rounds of one run: the previous layout (``TD3Learner(pair=True)``: two critic
-    networks, run as the recipe runs its critics), and where the recipe runs the ensemble's
-    members on two threads, the ensemble in one vmapped call (``one_call``, the path of a GPU
-    or a compiled step). The operators of each (:func:`step_operators`) and the FLOPs per update
-    (counted over one ``policy_delay`` period of the warm-up: a critic step each update, an
-    actor step once)."""
+def bare_update_rate(recipe, n_updates: int, rounds: int = 5, against=None) -> dict:
+    """Updates/s of the learner on fixed mini-batches shaped as the schedule samples them (the
+    paper schedule: each robot's batch in turn, :func:`robot_batches`; median of ``rounds``
+    rounds), and in alternate rounds of one run: the previous layout (``TD3Learner(pair=True)``:
+    two critic networks, run as the recipe runs its critics), where the recipe runs the
+    ensemble's members on two threads the ensemble in one vmapped call (``one_call``, the path
+    of a GPU or a compiled step), and ``against`` (another recipe: the same update with other
+    settings, on its own batches). The operators of each on the first batch
+    (:func:`step_operators`) and the FLOPs per update (counted over one ``policy_delay`` period
+    of every batch: a critic step each update, an actor step once a period)."""
     import torch
 
     from gcnt.rl.td3.learner import TD3Learner
 
-    env, batch = fixed_batch(recipe)
+    env, batches = robot_batches(recipe)
     learners = {"new": TD3Learner(recipe, env), "previous": TD3Learner(recipe, env, pair=True)}
+    feeds = {"new": batches, "previous": batches}
     if learners["new"].twin.parallel:
         learners["one_call"] = TD3Learner(recipe, env, twin_threads=False)
+        feeds["one_call"] = batches
+    if against is not None:
+        other_env, feeds["against"] = robot_batches(against)
+        learners["against"] = TD3Learner(against, other_env)
     period = recipe.td3.policy_delay
     out: dict = {"threads": torch.get_num_threads()}
     for name, learner in learners.items():
-        for _ in range(period + 1):  # warm-up (first calls allocate; the actor step has run)
-            learner.update(batch)
-        out[name] = {"operators": step_operators(learner, batch, recipe.device)}
+        for b in feeds[name]:  # warm-up (first calls allocate; the actor step has run)
+            for _ in range(period + 1):
+                learner.update(b)
+        out[name] = {"operators": step_operators(learner, feeds[name][0], recipe.device)}
     with on_this_thread(learners["new"]) as learner:  # both critics' FLOPs counted
         products, (flops, _) = matrix_products(
-            lambda: count_flops(lambda: [learner.update(batch) for _ in range(period)])
+            lambda: count_flops(lambda: [learner.update(b) for b in batches for _ in range(period)])
         )
-    out["flops_per_update"] = flops / period
+    out["flops_per_update"] = flops / (period * len(batches))
     out["shapes_peak"] = shapes_peak_gflops(products, device=recipe.device)
-    # whole policy_delay periods per round, so that every round holds the same actor steps
-    per_round = max(period, -(-n_updates // rounds // period) * period)
+    # whole policy_delay periods of every batch per round: every round holds the same steps
+    cycle = period * len(batches)
+    per_round = max(cycle, -(-n_updates // rounds // cycle) * cycle)
     seconds: dict[str, list[float]] = {k: [] for k in learners}
     for _ in range(rounds):
         for name, learner in learners.items():
+            feed = feeds[name]
             t0 = time.perf_counter()
-            rows = [learner.step(batch) for _ in range(per_round)]
+            rows = [learner.step(feed[i // period % len(feed)]) for i in range(per_round)]
             torch.stack([r["loss_critic"] for r in rows]).sum().item()  # wait for the device
             seconds[name].append((time.perf_counter() - t0) / per_round)
     for name in learners:
         out[name]["update_ms"] = 1e3 * statistics.median(seconds[name])
         out[name]["updates_per_s"] = 1e3 / out[name]["update_ms"]
     out["ratio_to_previous"] = out["new"]["update_ms"] / out["previous"]["update_ms"]
+    if against is not None:
+        out["ratio_to_against"] = out["new"]["update_ms"] / out["against"]["update_ms"]
     out["twin_threads"] = learners["new"].twin.parallel
     return out
 
@@ -150,9 +156,11 @@ def _threads_for(recipe) -> int:
 
 def robot_batches(recipe) -> tuple:
     """The env (closed) and the mini-batches a schedule updates on: one mixed batch, or one batch
-    of each robot (the paper schedule: each robot's shapes compile once)."""
+    of each robot (the paper schedule: at the robot's own limb count where training cuts it,
+    :func:`gcnt.rl.td3.learner.trims_padding`; each robot's shapes compile once)."""
     from gcnt.rl.factories import make_env, train_robots
     from gcnt.rl.td3 import replay as rb
+    from gcnt.rl.td3.learner import trims_padding
 
     c = recipe.td3
     robots = train_robots(recipe)
@@ -163,7 +171,11 @@ def robot_batches(recipe) -> tuple:
     replay.extend(data)
     if c.schedule == "mixed":
         return env, [replay.sample_mixed().to(recipe.device)]
-    return env, [replay.sample_robot(i).to(recipe.device) for i in range(len(robots))]
+    cut = trims_padding(recipe)
+    return env, [
+        replay.sample_robot(i, limbs=r.num_limbs if cut else None).to(recipe.device)
+        for i, r in enumerate(robots)
+    ]
 
 
 def compiled_vs_eager(
@@ -311,6 +323,7 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
 
     warmup = max(warmup, recipe.td3.batch_size * len(train_robots(recipe)))
     recipe.td3.init_random_frames = warmup
+    recipe.td3.random_counted = "total"  # the warm-up is over all robots, whatever the recipe's
     recipe.collector.total_frames = warmup + steps
     all_rows = train_quietly(recipe, 1)
     random_end = recipe.resolved["init_random_frames"]
@@ -368,7 +381,7 @@ def stacked_update_ms(recipe, max_seeds: int, n_updates: int) -> dict:
     from gcnt.rl.td3.stacked import StackedTD3Learner
 
     c = recipe.td3
-    env, batch = fixed_batch(recipe)
+    env, (batch, *_) = robot_batches(recipe)  # mixed: the one batch
     learners = []
     for seed in range(max_seeds):
         torch.manual_seed(seed)
@@ -444,6 +457,34 @@ def run_stacked(args: argparse.Namespace, recipe) -> int:
     return 0
 
 
+def run_commits(args: argparse.Namespace) -> int:
+    """``--commits A,B``: :func:`gcnt.bench.commits.compare_commits`, printed."""
+    from gcnt.bench.commits import CommitBenchError, compare_commits
+    from gcnt.recipes import RecipeError
+
+    commits = [c for c in args.commits.split(",") if c]
+    if len(commits) != 2:
+        raise RecipeError(f"--commits takes two commits, A,B; got {args.commits!r}")
+    try:
+        out = compare_commits(args.recipe, args.overrides, commits, args.updates, args.rounds)
+    except CommitBenchError as e:
+        raise RecipeError(str(e)) from None
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    for c, sha in out["commits"].items():
+        rounds = ", ".join(f"{x:.1f}" for x in out["rounds_ms"][c])
+        print(
+            f"{c:>12s} ({sha[:9]}) bare TD3 update {out['update_ms'][c]:8.2f} ms (rounds: {rounds})"
+        )
+    a, b = commits
+    print(
+        f"{b} ÷ {a}: {out['ratio']:.3f} (medians of {args.rounds} alternate rounds; each a fresh "
+        "process per commit, on the torch threads training gives the update)"
+    )
+    return 0
+
+
 def run_td3(args: argparse.Namespace, recipe) -> int:
     """Both schedules in one run: the bare update (new and previous), end to end, and the
     replay sample time."""
@@ -465,7 +506,13 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
     for schedule in ("paper", "mixed"):
         r = copy.deepcopy(recipe)
         r.td3.schedule = schedule
-        m = bare_update_rate(r, args.updates)
+        against = None
+        if args.against:
+            from gcnt.recipes import load_recipe
+
+            against = load_recipe(args.recipe, [*args.overrides, *args.against])
+            against.td3.schedule = schedule
+        m = bare_update_rate(r, args.updates, rounds=args.rounds, against=against)
         bare = m["new"]["updates_per_s"]
         compiled = compiled_vs_eager(r, args.updates) if args.compiled else None
         e2e = end_to_end_rate(r, args.warmup, args.steps)
@@ -480,6 +527,8 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             "one_call": m.get("one_call"),
             # new ÷ previous bare update time, alternate rounds of one run
             "ratio_to_previous": m["ratio_to_previous"],
+            "against": m.get("against"),
+            "ratio_to_against": m.get("ratio_to_against"),
             "arithmetic": arithmetic(m["flops_per_update"], bare, peak),
             # the matmul rate at the update's own product shapes, and the update's share of it
             "shapes_peak_gflops": m["shapes_peak"]["gflops"],
@@ -528,6 +577,11 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             f"{row['previous_update_ms']:.1f} ms; new ÷ previous {row['ratio_to_previous']:.2f} "
             "(alternate rounds)"
         )
+        if row["against"]:
+            print(
+                f"       against ({' '.join(args.against)}): {row['against']['update_ms']:.1f} "
+                f"ms; recipe ÷ against {row['ratio_to_against']:.3f} (alternate rounds)"
+            )
         one = row["one_call"]
         if one:
             print(

@@ -54,6 +54,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="TD3: also the bare update compiled (compile.compile=true) against eager, "
         "alternate rounds, and the compile time (minutes on a CPU)",
     )
+    p.add_argument(
+        "--against",
+        action="append",
+        metavar="KEY=VALUE",
+        help="TD3: also the bare update with this override (repeatable, e.g. "
+        "td3.trim_padding=false), in alternate rounds with the recipe's: the ratio recipe ÷ it",
+    )
+    p.add_argument(
+        "--commits",
+        metavar="A,B",
+        help="TD3 instead: the bare update of two commits of this checkout (git worktrees), "
+        "alternate rounds in fresh processes, B ÷ A (e.g. --commits b9623ac,HEAD)",
+    )
+    p.add_argument("--rounds", type=int, default=5, help="alternate rounds (median of them)")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
@@ -98,7 +112,10 @@ def _measure(args: argparse.Namespace, recipe) -> int:
         raise RecipeError(
             f"bench-train measures TD3 and PPO recipes; {args.recipe} has algo {recipe.algo}"
         )
-    from gcnt.bench.td3 import run_stacked, run_td3, training_threads
+    from gcnt.bench.td3 import run_commits, run_stacked, run_td3, training_threads
+
+    if args.commits:
+        return run_commits(args)
 
     training_threads(recipe)
 

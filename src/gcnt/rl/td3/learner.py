@@ -478,17 +478,16 @@ def one_update_thread(recipe: Recipe) -> bool:
     )
 
 
-def trims_padding(recipe: Recipe, learner: TD3Learner) -> bool:
+def trims_padding(recipe: Recipe, learner: TD3Learner | None = None) -> bool:
     """Whether one-robot batches run at their robot's own limb count: ``td3.trim_padding``, for
-    a method the registry declares ``padding_free`` and with no dropout (whose random draws
-    would differ with the batch's shape)."""
+    a method the registry declares ``padding_free`` and (``learner``'s networks, where given)
+    with no dropout, whose random draws would differ with the batch's shape."""
     entry = NETWORKS.get(recipe.network.name)
     return (
         recipe.algo_config.trim_padding
         and entry is not None
         and entry.padding_free
-        and not has_dropout(learner.actor)
-        and not has_dropout(learner.critics)
+        and (learner is None or not (has_dropout(learner.actor) or has_dropout(learner.critics)))
     )
 
 
