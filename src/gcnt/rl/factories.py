@@ -11,7 +11,7 @@ from typing import Any
 
 import torch
 from tensordict.nn import TensorDictModuleBase
-from torchrl.envs import EnvBase, RewardSum, TransformedEnv
+from torchrl.envs import Compose, EnvBase, RewardSum, StepCounter, TransformedEnv
 
 from gcnt.keys import ACTION, HFIELD, OBS
 from gcnt.morphology import Robot
@@ -42,7 +42,8 @@ def make_env(
     max_limbs: int | None = None,
     num_threads: int | None = None,
 ) -> TransformedEnv:
-    """The benchmark's batched env over ``copies`` of each robot, with episode returns tracked.
+    """The benchmark's batched env over ``copies`` of each robot, with episode returns
+    (``RewardSum``) and lengths (``StepCounter``) tracked.
 
     Instance i·copies + c is copy c of robot i; its ``morph_id`` is i.
     """
@@ -51,7 +52,7 @@ def make_env(
     env = make_batched_env(
         recipe, instances, ids, seed=seed, max_limbs=max_limbs, num_threads=num_threads
     )
-    return TransformedEnv(env, RewardSum())
+    return TransformedEnv(env, Compose(RewardSum(), StepCounter()))
 
 
 def make_batched_env(

@@ -228,11 +228,12 @@ def check_recipe(recipe: Recipe, *, lookups: dict | None = None) -> RunRecord:
 
 
 class TrainStats:
-    """Episode returns per robot, losses and rates between two log lines."""
+    """Episode returns and lengths per robot, losses and rates between two log lines."""
 
     def __init__(self, names: list[str], env_steps: int, updates: int):
         self.names = names
         self.returns: dict[int, list[float]] = defaultdict(list)
+        self.lengths: dict[int, list[int]] = defaultdict(list)
         self.losses: dict[str, list[float]] = defaultdict(list)
         self.t, self.env_steps, self.updates = time.perf_counter(), env_steps, updates
 
@@ -242,6 +243,10 @@ class TrainStats:
         rets = data["next", "episode_reward"].squeeze(-1)[done].tolist()
         for robot, ret in zip(robots, rets, strict=True):
             self.returns[robot].append(ret)
+        steps = data.get(("next", "step_count"), None)  # torchrl's StepCounter, where tracked
+        if steps is not None:
+            for robot, n in zip(robots, steps.squeeze(-1)[done].tolist(), strict=True):
+                self.lengths[robot].append(n)
 
     def add_losses(self, losses: dict[str, float]) -> None:
         for k, v in losses.items():
@@ -262,7 +267,16 @@ class TrainStats:
         if per_robot:
             row["train_return/mean"] = float(np.mean(list(per_robot.values())))
         row.update(per_robot)
+        # the episode lengths beside the returns: a return made of survival bonuses is told
+        # apart from one made of progress (SMPENV pays about 1 per step alive)
+        lengths = {
+            f"train_length/{self.names[k]}": float(np.mean(v)) for k, v in self.lengths.items()
+        }
+        if lengths:
+            row["train_length/mean"] = float(np.mean(list(lengths.values())))
+        row.update(lengths)
         self.returns.clear()
+        self.lengths.clear()
         self.losses.clear()
         self.t, self.env_steps, self.updates = now, env_steps, updates
         return row

@@ -49,6 +49,12 @@ class TD3Config:
     #: FLOPs, for methods whose outputs do not depend on padding (``padding_free`` in the network
     #: registry); false: every batch padded (to compare speeds)
     trim_padding: bool = True
+    #: every this many counted env steps (0: never), measure the learner on a fixed probe of
+    #: random-action transitions (``gcnt.rl.td3.probe``): ``probe/q1_mean``,
+    #: ``probe/saturated`` and ``probe/action_std`` in the next metrics row
+    probe_interval: int = 0
+    #: the probe's lockstep steps of uniform-random actions (transitions: this x robots)
+    probe_steps: int = 250
     #: std of the Gaussian exploration noise added to the actor's actions
     exploration_noise: float = 0.126
     # --- replay
@@ -94,7 +100,8 @@ class TD3Config:
             "buffer_total_size",
             "policy_delay",
         )
-        check_range(self, ">= 0", "init_random_frames")
+        check_range(self, ">= 0", "init_random_frames", "probe_interval")
+        check_range(self, ">= 1", "probe_steps")
         check_range(self, "positive finite", "lr", "tau", "updates_per_step")
         check_range(self, "[0, 1]", "gamma")
         if not self.tau <= 1.0:

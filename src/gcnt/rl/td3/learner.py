@@ -720,6 +720,8 @@ class TD3(Algorithm):
         self.schedule = UpdateSchedule(c, n, int(env.batch_size[0]), limbs)
         self.stored = 0
         self._to_store: TensorDictBase | None = None  # admit()'s batch to store, for process()
+        self._probe: TensorDictBase | None = None  # td3.probe_interval's transitions
+        self._extras: dict[str, float] = {}  # for the next log row
         self._buffer_file: str | None = None  # the replay file the last loaded state names
 
     @property
@@ -774,6 +776,22 @@ class TD3(Algorithm):
         batches = self.store(data if stored is None else stored, env_steps, counted=data)
         # the losses stay on the device during a phase: one synchronisation per phase
         yield from loss_rows([self.learner.step(batch) for batch in batches])
+        self._probe_when_due(env_steps, env_steps - data.numel())
+
+    def _probe_when_due(self, env_steps: int, before: int) -> None:
+        """``td3.probe_interval``: the probe's measures once a multiple of it is crossed."""
+        every = self.config.probe_interval
+        if not every or env_steps // every == before // every:
+            return
+        from gcnt.rl.td3.probe import make_probe, probe_measures
+
+        if self._probe is None:
+            self._probe = make_probe(self.recipe, self.robots, self.config.probe_steps)
+        self._extras |= probe_measures(self.learner, self._probe)
+
+    def log_extras(self) -> dict[str, float]:
+        out, self._extras = self._extras, {}
+        return out
 
     def resolved(self) -> dict[str, Any]:
         c, fpb = self.config, self._frames_per_batch()
