@@ -26,6 +26,7 @@ of the members writes them) into it.
 from __future__ import annotations
 
 import copy
+import threading
 from collections.abc import Callable, Mapping, Sequence
 
 import torch
@@ -162,16 +163,20 @@ class Ensemble(nn.Module):
             self._view(i)
 
     def _view(self, i: int) -> tuple[nn.Module, TensorChain, list]:
+        """Member ``i``'s structural copy for the calling thread: :meth:`one` swaps slices into
+        it for the call, so two threads running the same member (TD3's actor loss over two
+        halves of a batch) each need their own."""
         views = self.__dict__.get("_views")
         if views is None:
             views = self.__dict__["_views"] = {}
-        if i not in views:
+        key = (i, threading.get_ident())
+        if key not in views:
             view = _structural_copy(self.net)
             # the holders in the copy, in the order of the network's
             where = {id(m): c for m, c in zip(self.net.modules(), view.modules(), strict=True)}
             slots = [(where[id(m)], n) for m, n in self._holders]
-            views[i] = (view, TensorChain(view), slots)
-        return views[i]
+            views[key] = (view, TensorChain(view), slots)
+        return views[key]
 
     def prepare_grads(self) -> None:
         """Give every stacked parameter a zero gradient before members backpropagate on threads
