@@ -89,7 +89,7 @@ from gcnt.rl.td3.loss import (
     target_noise,
     td_target,
 )
-from gcnt.rl.td3.tensor_chain import TensorChain, TensorChainModule, has_dropout
+from gcnt.rl.td3.tensor_chain import RobotBatch, TensorChain, TensorChainModule, has_dropout
 from gcnt.rl.td3.twin import InTurn, make_pair_runner
 
 log = logging.getLogger(__name__)
@@ -274,7 +274,7 @@ class TD3Learner:
         with autocast(self.accel, self.device):
             with torch.no_grad():
                 nxt = self._inputs(batch, next_step=True)
-                next_action = self.f_target_actor(nxt, robots)[ACTION]
+                next_action = self._target_action(nxt, robots)
                 nxt[ACTION] = smoothed_target_action(next_action, noise)
                 next_q = self._twin(self.target_critics, nxt, robots, _limb_q)
                 target = td_target(
@@ -302,6 +302,21 @@ class TD3Learner:
                 loss.backward()
                 return loss.detach()
             return loss
+
+    def _target_action(self, inputs: dict, robots: RobotBatch) -> torch.Tensor:
+        """The target actor's action on ``inputs`` (no gradient); where the twin critics run on
+        two threads, each thread computes one half of the batch (the same values)."""
+        n = robots.ids.shape[0]
+        if not self.twin.parallel or n < 2 or torch.compiler.is_compiling():
+            return self.f_target_actor(inputs, robots)[ACTION]
+        cut = [slice(0, n // 2), slice(n // 2, n)]
+
+        def half(part: slice) -> torch.Tensor:
+            with torch.no_grad():
+                own = RobotBatch(robots.table, robots.ids[part])
+                return self.f_target_actor({k: v[part] for k, v in inputs.items()}, own)[ACTION]
+
+        return torch.cat(self.twin.map(half, cut))
 
     def actor_loss(
         self, batch: TensorDictBase, morph_id: torch.Tensor | None = None
