@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from gcnt.envs.stepper import usable_cpus
 from gcnt.recipes import CompileConfig, RecipeError, load_recipe, recipe_from_dict
 from gcnt.rl.accelerate import choose_compile, compile_step
 from gcnt.rl.td3.learner import COMPILE_BREAK_EVEN, one_update_thread, resolve_compile
@@ -55,6 +56,13 @@ def test_the_quick_start_stays_eager_and_long_runs_compile():
     # eager's critics on one thread (twin_threads=false): nothing to warn of
     one = load_recipe(PAPER, ["compile.twin_threads=false"])
     assert "compile.compile=false" not in resolve_compile(one, 6)[1]
+    # the paper's networks (GCNT's actor: 413k parameters) are bound by their arithmetic: on
+    # 2 to 4 cores they stay eager, whatever the run's length; the quick start's would compile
+    run, why = resolve_compile(paper, 6, params=413_140)
+    arithmetic = 2 <= usable_cpus() <= 4
+    assert run.compile.compile is not arithmetic
+    assert ("bound by its arithmetic" in why) is arithmetic
+    assert resolve_compile(paper, 6, params=14_260)[0].compile.compile is True
     # study 1's Walker++ runs (4 robots) stay eager at their 12,000 steps, compile at 100,000
     study = load_recipe(STUDY)
     assert resolve_compile(study, 4)[0].compile.compile is False

@@ -36,6 +36,7 @@ network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
 logger: {{backend: none, progress: false, log_interval: 20}}
 eval: {{episodes: 1, interval: 0}}
 checkpoint_interval: 1000000
+compile: {{compile: false}}  # what is tested is the stop, not compiling (auto would compile)
 """
 
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import torch
 
+from gcnt.envs.stepper import usable_cpus
 from gcnt.recipes import CompileConfig
 
 log = logging.getLogger(__name__)
@@ -89,22 +90,45 @@ def compile_step(
     return _Timed(torch.compile(fn, **kwargs), name or getattr(fn, "__name__", "step"))
 
 
+#: ``compile.compile: auto`` keeps an update eager on a CPU with 2 to 4 cores when its network
+#: has at least this many parameters (the actor's): such an update is bound by its matrix
+#: products, not by its operators, and eagerly runs its twin critics, target actor and actor
+#: halves on two threads where the compiled one runs on one. Measured on 2-core machines: the
+#: quick start's and study 1's networks (actors of about 14k parameters) update 0.57-0.80x
+#: eager's time compiled; the paper's Walker++ sizes (GCNT's actor 413k) 1.25x slower compiled
+#: (docs/performance.md)
+ARITHMETIC_BOUND_PARAMS = 100_000
+
+
 def choose_compile(
     config: CompileConfig,
     device: str | torch.device,
     planned_updates: float,
     break_even_updates: float,
+    params: int | None = None,
 ) -> tuple[bool, str]:
     """``compile.compile`` for a run, and why: a bool as the recipe gives it; ``auto``: compiled
     on a CPU when the run plans at least ``break_even_updates`` updates (the updates whose
     saving repays the compile time, measured by the algorithm), eager below that, on other
-    devices (not measured) and where ``compile.twin_threads=true`` asks for the eager
-    two-thread critics."""
+    devices (not measured), where ``compile.twin_threads=true`` asks for the eager two-thread
+    critics, and on a CPU with 2 to 4 cores for a network of ``params`` parameters or more
+    than :data:`ARITHMETIC_BOUND_PARAMS` (bound by its arithmetic: eager uses both cores)."""
     if config.compile is not True and config.compile is not False:
         if config.twin_threads:
             return False, "auto: eager, as compile.twin_threads=true runs the critics eagerly"
         if torch.device(device).type != "cpu":
             return False, f"auto: eager on {device} (the break-even was measured on CPUs)"
+        if (
+            params is not None
+            and params >= ARITHMETIC_BOUND_PARAMS
+            and 2 <= usable_cpus() <= 4
+            and config.torch_threads in (None, 1)
+        ):
+            return False, (
+                f"auto: eager, the network ({params:,} parameters) is bound by its arithmetic "
+                f"and this CPU has {usable_cpus()} cores: eager runs the update on two threads, "
+                "compiled on one"
+            )
         if planned_updates >= break_even_updates:
             return True, (
                 f"auto: compiled, the run plans {planned_updates:,.0f} updates, past the "

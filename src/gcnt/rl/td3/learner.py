@@ -468,16 +468,20 @@ class TD3Learner:
 COMPILE_BREAK_EVEN = {"paper": 70_000.0, "mixed": 30_000.0}
 
 
-def resolve_compile(recipe: Recipe, num_robots: int) -> tuple[Recipe, str]:
+def resolve_compile(
+    recipe: Recipe, num_robots: int, params: int | None = None
+) -> tuple[Recipe, str]:
     """``recipe`` with ``compile.compile`` a bool (:func:`gcnt.rl.accelerate.choose_compile` for
     ``auto``: the run's planned updates, :meth:`TD3Config.planned_updates`, against
-    :data:`COMPILE_BREAK_EVEN`; a copy, the recipe given is left as it is), and why."""
+    :data:`COMPILE_BREAK_EVEN`, and the actor's ``params``; a copy, the recipe given is left as
+    it is), and why."""
     c: TD3Config = recipe.algo_config
     compiled, why = choose_compile(
         recipe.compile,
         recipe.device,
         c.planned_updates(recipe.collector.total_frames, num_robots),
         COMPILE_BREAK_EVEN[c.schedule],
+        params,
     )
     auto = recipe.compile.compile == "auto"
     # eager would run the twin critics on two threads (twin.make_pair_runner's automatic choice)
@@ -498,6 +502,15 @@ ONE_THREAD_CAVEAT = (
     "compiled on one torch thread, where the eager critics run on two: on an idle machine a "
     "large network (the paper's sizes) can update faster eagerly (compile.compile=false)"
 )
+
+
+def actor_parameters(recipe: Recipe, env: EnvBase) -> int | None:
+    """The parameters of the run's actor (built once aside, without drawing from torch's
+    global random stream), where ``compile.compile: auto`` needs them; None otherwise."""
+    if recipe.compile.compile in (True, False):
+        return None
+    with torch.random.fork_rng(devices=[]):
+        return sum(p.numel() for p in make_net(recipe, env, "td3_actor").parameters())
 
 
 def one_update_thread(recipe: Recipe) -> bool:
@@ -728,7 +741,7 @@ class TD3(Algorithm):
     def __init__(self, recipe: Recipe, env: EnvBase, robots: Sequence[Robot]) -> None:
         n = len(robots)
         # compile.compile: auto resolved for this run (the recipe given keeps "auto")
-        recipe, why = resolve_compile(recipe, n)
+        recipe, why = resolve_compile(recipe, n, actor_parameters(recipe, env))
         super().__init__(recipe, env, robots)
         self.choices.append(f"TD3 update compile.compile={why}")
         c: TD3Config = self.config
@@ -750,7 +763,7 @@ class TD3(Algorithm):
         check_replay_memory(env, n, capacity, replay_device)  # allocated later: refuse it now
         self.replay = rb.RobotReplay(n, capacity, c.batch_size, device=replay_device)
         trim = trims_padding(recipe, self.learner)
-        if trim and c.schedule == "paper":
+        if trim and c.schedule == "paper" and len({r.num_limbs for r in robots}) > 1:
             self.choices.append(
                 "TD3 one-robot batches at each robot's own limb count (td3.trim_padding)"
             )
