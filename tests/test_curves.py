@@ -193,3 +193,18 @@ def test_names_keys_that_name_nothing_shown_are_an_error_with_a_suggestion(tmp_p
     shared.write_text("gcnt: Ours\nmetamorph_str: MM*\n")
     line = error_line(capsys, ["curves", str(tmp_path), "--names", str(shared), *out])
     assert "--names metamorph_str" in line and "did you mean 'metamorph_star'" in line
+
+
+def test_per_seed_rows_hold_every_runs_own_points_and_episode_lengths(tmp_path: Path) -> None:
+    for seed in (0, 1):
+        path = make_run(tmp_path, "gcnt", seed, [600, 1200], lambda s, k=seed: s / 100 + k)
+        run = RunDir(path)
+        run.log_metrics({"env_steps": 1800, "train_return/mean": 30.0 + seed,
+                         "train_length/mean": 100.0 + seed})  # fmt: skip
+    assert main(["curves", str(tmp_path), "--per-seed"]) == 0
+    rows = read_csv(tmp_path / "figures" / "curves.seeds.csv")
+    assert [(r["seed"], r["env_steps"]) for r in rows] == [
+        ("0", "600"), ("0", "1200"), ("0", "1800"), ("1", "600"), ("1", "1200"), ("1", "1800")
+    ]  # fmt: skip
+    assert rows[4]["train_return/mean"] == "13.0" and rows[5]["train_length/mean"] == "101.0"
+    assert rows[0]["train_length/mean"] == "" and rows[0]["method"] == "gcnt"

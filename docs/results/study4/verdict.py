@@ -1,57 +1,81 @@
-"""Study 4's pre-registered test and its secondary measures, from a finished sweep directory.
+"""Study 4's pre-registered test and its secondary tests, from its per-seed values.
 
-    python docs/results/study4/verdict.py $STUDIES/study4
+    python docs/results/study4/verdict.py                       # from seeds.csv beside this file
+    python docs/results/study4/verdict.py --from-sweep $STUDIES/study4   # rewrite seeds.csv first
 
 Primary: each seed's mean exploring return (``train_return/mean``) over the logged rows of its
 last 100,000 env steps; GCNT against SMP by a two-sided Welch t-test, alpha = 0.05. Secondary,
 each with its own Welch test: the last periodic evaluation on the training robots, and zero-shot
-on each test robot (the ``gcnt sweep --eval test`` files).
+on each test robot (the ``gcnt sweep --eval test`` files). Each line states the test's power
+(``gcnt.analysis.verdict``). seeds.csv holds the values published in docs/results/README.md
+(one decimal); the study's runs are not in the repository.
 """
 
+import argparse
+import csv
 import statistics as st
-import sys
+from pathlib import Path
 
-from scipy import stats
+from gcnt.analysis.verdict import verdict_line, welch
 
-from gcnt.analysis.runs import find_runs
-from gcnt.run_data import Run
-
+HERE = Path(__file__).parent
 WINDOW = 100_000
+MEASURES = {
+    "primary_last100k_return": "primary (last-100k exploring return)",
+    "final_eval_train": "final evaluation, training robots",
+    "zeroshot_walker_3_main": "zero-shot walker_3_main",
+    "zeroshot_walker_6_main": "zero-shot walker_6_main",
+}
 
 
-def measures(run: Run) -> dict[str, float]:
-    rows = [r for r in run.metrics() if "train_return/mean" in r]
-    end = run.last_env_steps()
-    out = {
-        "primary (last-100k exploring return)": st.mean(
-            r["train_return/mean"] for r in rows if r["env_steps"] > end - WINDOW
-        )
-    }
-    evals = run.evals()
-    last = max((e for e in evals if e.label == ""), key=lambda e: e.env_steps)
-    out["final evaluation, training robots"] = st.mean(
-        last.robots[name]["mean"] for name in run.train_robot_names()
-    )
-    [test] = [e for e in evals if e.label == "test"]
-    out.update({f"zero-shot {name}": v["mean"] for name, v in test.robots.items()})
-    return out
+def from_sweep(sweep: str) -> list[dict]:
+    """The per-seed values from the study's sweep directory."""
+    from gcnt.analysis.runs import find_runs
 
-
-def main(sweep: str) -> None:
-    values: dict[str, dict[str, list[float]]] = {}
+    rows = []
     for run in find_runs([sweep]):
-        for name, v in measures(run).items():
-            values.setdefault(name, {}).setdefault(run.method, []).append(v)
-    for name, by_method in values.items():
-        g, s = by_method["gcnt"], by_method["smp"]
-        t = stats.ttest_ind(g, s, equal_var=False)
-        print(
-            f"{name}: GCNT {st.mean(g):.1f} ± {st.stdev(g) / len(g) ** 0.5:.1f}, "
-            f"SMP {st.mean(s):.1f} ± {st.stdev(s) / len(s) ** 0.5:.1f} (mean ± s.e., "
-            f"{len(g)} + {len(s)} seeds); Welch t = {t.statistic:.3f}, df = {t.df:.2f}, "
-            f"p = {t.pvalue:.4f}"
+        metrics = [r for r in run.metrics() if "train_return/mean" in r]
+        end = run.last_env_steps()
+        evals = run.evals()
+        last = max((e for e in evals if e.label == ""), key=lambda e: e.env_steps)
+        [test] = [e for e in evals if e.label == "test"]
+        rows.append(
+            {
+                "method": run.method,
+                "seed": run.seed,
+                "env_steps": end,
+                "primary_last100k_return": round(
+                    st.mean(
+                        r["train_return/mean"] for r in metrics if r["env_steps"] > end - WINDOW
+                    ),
+                    1,
+                ),
+                "final_eval_train": round(
+                    st.mean(last.robots[n]["mean"] for n in run.train_robot_names()), 1
+                ),
+                **{f"zeroshot_{n}": round(v["mean"], 1) for n, v in test.robots.items()},
+            }
         )
+    return sorted(rows, key=lambda r: (r["method"], r["seed"]))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--from-sweep", metavar="DIR", help="rewrite seeds.csv from the sweep first")
+    args = p.parse_args()
+    path = HERE / "seeds.csv"
+    if args.from_sweep:
+        rows = from_sweep(args.from_sweep)
+        with path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    rows = list(csv.DictReader(path.open()))
+    for key, name in MEASURES.items():
+        g = [float(r[key]) for r in rows if r["method"] == "gcnt"]
+        s = [float(r[key]) for r in rows if r["method"] == "smp"]
+        print(verdict_line(name, ("GCNT", "SMP"), welch(g, s), (len(g), len(s))))
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main()

@@ -259,6 +259,55 @@ def random_phase(runs: Sequence[Run]) -> dict[str, list[int]]:
     return {task: sorted(v) for task, v in out.items()}
 
 
+#: the per-seed file's columns besides the metric's own (``seeds_rows``)
+SEED_FIELDS = ["task", "method", "seed", "run", "env_steps"]
+#: logged beside a return: its episodes' mean length (a return of survival bonuses is told
+#: apart from one of progress)
+LENGTH_OF = {"train_return/mean": "train_length/mean"}
+
+
+def seeds_rows(runs: Sequence[Run], metric: str = "train_return/mean") -> list[dict]:
+    """Every run's own points of ``metric`` (no averaging, no smoothing): one row per run and
+    logged step, with the run's task, method label, seed and folder name, and, for the
+    exploring return, the episodes' mean length logged with it. What a reader re-tests a
+    verdict from (``gcnt curves --per-seed``)."""
+    rows = []
+    length = LENGTH_OF.get(metric)
+    for group in comparable_groups(runs):
+        for run in sorted(group.runs, key=lambda r: (r.seed, str(r.path))):
+            x, y = run_curve(run, metric, 1)
+            lengths = {}
+            if length is not None:
+                lengths = {
+                    int(m["env_steps"]): m[length] for m in run.metrics() if length in m
+                }
+            for step, value in zip(x, y, strict=True):
+                row = {
+                    "task": group.task,
+                    "method": group.label,
+                    "seed": run.seed,
+                    "run": run.path.name,
+                    "env_steps": int(step),
+                    metric: float(value),
+                }
+                if length is not None:
+                    row[length] = lengths.get(int(step))
+                rows.append(row)
+    return rows
+
+
+def write_seeds_csv(rows: Sequence[dict], metric: str, path: Path) -> Path:
+    """:func:`seeds_rows` as a CSV file."""
+    fields = [*SEED_FIELDS, metric, *([LENGTH_OF[metric]] if metric in LENGTH_OF else [])]
+    text = io.StringIO(newline="")
+    w = csv.DictWriter(text, fieldnames=fields)
+    w.writeheader()
+    w.writerows({k: row.get(k) for k in fields} for row in rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, text.getvalue())
+    return path
+
+
 def write_csv(rows: Sequence[dict], path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     text = io.StringIO(newline="")

@@ -39,6 +39,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--smooth", type=int, default=1, help="moving average over N log rows (off)")
     p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
     p.add_argument("--name", default="curves", help="file name stem (default: curves)")
+    p.add_argument(
+        "--per-seed",
+        action="store_true",
+        help="also <name>.seeds.csv: every run's own logged points (task, method, seed, "
+        "env steps, the metric; for the exploring return also its episodes' mean length), "
+        "what a verdict can be re-tested from",
+    )
     add_figure_options(p)
 
 
@@ -74,7 +81,11 @@ def run(args: argparse.Namespace) -> int:
             f"{task:<12} {method:<14} seeds {seeds}{per}  at {last['env_steps']:>9} steps: "
             f"{last['mean']:.1f}{se}"
         )
-    for path in [*style.outputs(out / f"{args.name}.png"), csv]:
+    written = [*style.outputs(out / f"{args.name}.png"), csv]
+    if args.per_seed:
+        seeds = C.seeds_rows(runs, args.metric)
+        written.append(C.write_seeds_csv(seeds, args.metric, out / f"{args.name}.seeds.csv"))
+    for path in written:
         print(f"written: {path}")
     _caption(runs, out / f"{args.name}.caption.txt")
     return 0

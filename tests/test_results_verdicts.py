@@ -1,0 +1,43 @@
+"""Every study's published tests recompute from the per-seed files published beside it
+(``docs/results/<study>/verdict.py`` reads only its folder), to the p values the results page
+states."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gcnt.analysis.verdict import detectable, power_for, welch
+
+RESULTS = Path(__file__).parents[1] / "docs/results"
+SCRIPTS = sorted(RESULTS.glob("*/verdict.py"))
+#: the p values each study's page states, in the order its script prints them
+PUBLISHED = {"study4": [0.149, 0.14, 0.94, 0.048]}
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=[s.parent.name for s in SCRIPTS])
+def test_a_verdict_recomputes_from_the_published_seed_files(script):
+    out = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, check=True
+    ).stdout
+    ps = [float(p) for p in re.findall(r"p = ([0-9.]+);", out)]
+    expected = PUBLISHED.get(script.parent.name)
+    if expected is None:  # a study still running: its script runs on what was reached
+        assert ps or "no runs" in out
+        return
+    assert len(ps) == len(expected)
+    for p, stated in zip(ps, expected, strict=True):
+        digits = len(str(stated).split(".")[1])
+        assert round(p, digits) == stated
+        assert f"{stated}" in (RESULTS / "README.md").read_text()
+
+
+def test_power_grows_with_the_difference_and_the_detectable_one_has_80_percent():
+    assert power_for(0.0, 1.0, 1.0, 3, 3) < 0.06  # the test's size under no difference
+    assert power_for(1.0, 1.0, 1.0, 3, 3) < power_for(3.0, 1.0, 1.0, 3, 3) < 1.0
+    d = detectable(1.0, 1.0, 3, 3)
+    assert power_for(d, 1.0, 1.0, 3, 3) >= 0.8 > power_for(0.95 * d, 1.0, 1.0, 3, 3)
+    w = welch([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    assert w["p"] == pytest.approx(1.0) and w["diff"] == 0.0
