@@ -70,4 +70,6 @@ def test_flops_of_an_update_with_critics_on_two_threads_count_both_critics():
         counted, _ = count_flops(lambda: threads.critic_step(batch))
     as_run, _ = count_flops(lambda: threads.critic_step(batch))
     whole, _ = count_flops(lambda: one_call.critic_step(batch))
-    assert counted == whole > as_run
+    # the same products as one call, and the robot-only stages of the target actor once more
+    # (each thread computes them for its half of the batch)
+    assert whole <= counted <= 1.05 * whole and counted > as_run

@@ -55,7 +55,9 @@ def test_the_profiler_lines_stay_out_of_the_report():
 
 def test_the_ensemble_update_dispatches_fewer_operators_than_two_critics(recipe_file):
     """The critic step of the ensemble in one call dispatches well under the two critics'
-    operators; with its members on two threads, no more than the two critics did."""
+    operators. With its members on two threads, the update also splits the batch in halves
+    between the threads for the target actor (a few more operators in the critic step) and the
+    actor step (two actor passes, each on half the batch: about twice the operators)."""
     from gcnt.bench.td3 import bare_update_rate
 
     recipe = load_recipe(recipe_file, ["td3.schedule=mixed", "compile.twin_threads=true"])
@@ -65,7 +67,8 @@ def test_the_ensemble_update_dispatches_fewer_operators_than_two_critics(recipe_
     assert out["twin_threads"]
     assert one["critic_step"] < 0.75 * old["critic_step"]
     assert one["per_update"] < old["per_update"]
-    assert new["per_update"] <= old["per_update"]
+    assert new["critic_step"] <= 1.1 * old["critic_step"]
+    assert new["actor_step"] <= 2.2 * old["actor_step"]
     assert one["working_per_update"] < 0.8 * old["working_per_update"]
     assert 0 < new["working_per_update"] < new["per_update"]
     assert out["ratio_to_previous"] > 0 and out["one_call"]["update_ms"] > 0

@@ -56,6 +56,8 @@ def test_an_offline_wandb_run_has_one_row_per_log_step_the_video_and_the_summary
         assert h["eval_return/step"] == row["env_steps"]
         for name, res in evaluation["robots"].items():
             assert h[f"eval_return/{name}"] == pytest.approx(res["mean"], rel=1e-12)
+        means = [res["mean"] for res in evaluation["robots"].values()]
+        assert h["eval_return/mean"] == pytest.approx(sum(means) / len(means), rel=1e-12)
         # each evaluation's video joins its row, and the file is among the run's files
         assert h["eval_video._type"] == "video-file"
         folder = next((run / "wandb").glob("offline-run-*"))
@@ -77,5 +79,11 @@ def test_an_offline_wandb_run_has_one_row_per_log_step_the_video_and_the_summary
     # the plugins this process imported (earlier tests' included), as the run's provenance has them
     assert config["code"]["plugins"] == plugins.loaded()
     assert config["collector"]["total_frames"] == 40
+    # the recipe's env section as the recipe has it, in every config record (torchrl's package
+    # listing would replace it)
+    envs = [r["config"]["update"]["env"] for r in records
+            if r["type"] == "config" and "env" in r["config"].get("update", {})]  # fmt: skip
+    for env in [config["env"], *envs]:
+        assert env["benchmark"] == "smpenv" and env["robots"] == ["hopper_3"]
     saved = {f["path"] for r in records if r["type"] == "files" for f in r["files"]["files"]}
     assert {"recipe.yaml", "provenance.json"} <= saved

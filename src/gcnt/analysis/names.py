@@ -48,6 +48,7 @@ TASKS = (
     "UNIMAL100-FT",
     "study-Walker++",
     "study4-Walker++",
+    "study5-Walker++",
     "study-UNIMAL-FT",
     "study-UNIMAL-FT-fair",
     "study-UNIMAL100-FT-fair",

@@ -873,7 +873,11 @@ def _evaluate(
         },
     )
     if logger is not None:
-        logger.add(env_steps, {f"eval_return/{name}": res["mean"] for name, res in results.items()})
+        row = {f"eval_return/{name}": res["mean"] for name, res in results.items()}
+        row["eval_return/mean"] = float(np.mean([res["mean"] for res in results.values()]))
+        row |= {f"eval_length/{name}": res["length_mean"] for name, res in results.items()
+                if "length_mean" in res}  # fmt: skip
+        logger.add(env_steps, row)
     log.info("eval at %d steps written to %s", env_steps, Path(path))
     if recipe.eval.video:
         out = render_policy(recipe, policy, run.step_file("videos", env_steps))

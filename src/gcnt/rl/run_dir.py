@@ -553,6 +553,9 @@ def make_logger(
         },
         id=wandb_id(run, name),
         resume="allow",
+        # torchrl would write the Python packages into config["env"], over the recipe's env
+        # section (benchmark, robots, world); the run's code is in config["code"]
+        log_env_packages=False,
         **({"reinit": "create_new"} if concurrent else {}),
     )
     return RunLogger(logger)

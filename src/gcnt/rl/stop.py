@@ -69,9 +69,15 @@ class StopRequest:
     def _watch(self) -> None:
         """Take the blocked signals as they arrive (a second SIGINT interrupts the main
         thread)."""
+        wanted = {int(s) for s in SIGNALS}
         while not self._closing.is_set():
-            info = signal.sigtimedwait(SIGNALS, 0.2)
-            if info is None:
+            try:
+                info = signal.sigtimedwait(SIGNALS, 0.2)
+            except OSError:  # interrupted by another signal (a timer's): wait again
+                continue
+            # a wait cut short by another signal (the SIGALRM of training's timers) can come
+            # back with a siginfo that was never filled in: only the stop signals count
+            if info is None or info.si_signo not in wanted:
                 continue
             if info.si_signo == signal.SIGINT and self.signame == "SIGINT":
                 _thread.interrupt_main()

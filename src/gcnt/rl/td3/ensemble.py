@@ -161,6 +161,8 @@ class Ensemble(nn.Module):
         copying."""
         for i in range(self.size):
             self._view(i)
+            views = self.__dict__["_views"]
+            views.setdefault((i, "compiled"), views[(i, threading.get_ident())])
 
     def _view(self, i: int) -> tuple[nn.Module, TensorChain, list]:
         """Member ``i``'s structural copy for the calling thread: :meth:`one` swaps slices into
@@ -169,7 +171,8 @@ class Ensemble(nn.Module):
         views = self.__dict__.get("_views")
         if views is None:
             views = self.__dict__["_views"] = {}
-        key = (i, threading.get_ident())
+        # a compiled step runs on one thread, and cannot trace the thread's id
+        key = (i, "compiled" if torch.compiler.is_compiling() else threading.get_ident())
         if key not in views:
             view = _structural_copy(self.net)
             # the holders in the copy, in the order of the network's
