@@ -278,9 +278,7 @@ def seeds_rows(runs: Sequence[Run], metric: str = "train_return/mean") -> list[d
             x, y = run_curve(run, metric, 1)
             lengths = {}
             if length is not None:
-                lengths = {
-                    int(m["env_steps"]): m[length] for m in run.metrics() if length in m
-                }
+                lengths = {int(m["env_steps"]): m[length] for m in run.metrics() if length in m}
             for step, value in zip(x, y, strict=True):
                 row = {
                     "task": group.task,
