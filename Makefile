@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.gcnt-installed
 
-.PHONY: train test test-gpu-emulated test-slurm lint install clean-venv
+.PHONY: train test test-bench test-gpu-emulated test-slurm lint install clean-venv
 
 install: $(STAMP)
 
@@ -26,8 +26,13 @@ train: $(STAMP)
 # the Slurm checks: as root they install slurm-wlm and munge (apt-get) and check sweeps against
 # a single-node Slurm they start (tests/test_slurm.py; skipped, saying why, elsewhere).
 test: $(STAMP)
-	$(BIN)/python -m pytest -m "not slurm"
+	$(BIN)/python -m pytest -m "not slurm and not bench"
 	$(BIN)/python -m pytest -m slurm tests/test_slurm.py
+
+# gcnt bench-train on every shipped recipe with a tiny budget (tests/test_bench_every_recipe.py):
+# a few minutes, so apart from the suite; CI runs it after `make test`.
+test-bench: $(STAMP)
+	$(BIN)/python -m pytest -m bench tests/test_bench_every_recipe.py
 
 # The whole GPU matrix (tests/test_gpu.py, every method and switch, and the graphed-step parity):
 # on the GPU where there is one, else on the emulated GPU of tests/cuda_emulation, whose rules are

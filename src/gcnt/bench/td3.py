@@ -321,10 +321,13 @@ def end_to_end_rate(recipe, warmup: int, steps: int) -> dict:
     that ends the random phase is left out: it is collected with random actions."""
     from gcnt.rl.factories import train_robots
 
-    warmup = max(warmup, recipe.td3.batch_size * len(train_robots(recipe)))
+    robots = len(train_robots(recipe))
+    warmup = max(warmup, recipe.td3.batch_size * robots)
     recipe.td3.init_random_frames = warmup
     recipe.td3.random_counted = "total"  # the warm-up is over all robots, whatever the recipe's
-    recipe.collector.total_frames = warmup + steps
+    # training rounds the random phase up to whole batches: the timed steps come after that
+    batch = robots * recipe.td3.steps_per_batch
+    recipe.collector.total_frames = -(-warmup // batch) * batch + max(steps, batch)
     all_rows = train_quietly(recipe, 1)
     random_end = recipe.resolved["init_random_frames"]
     prev = [r for r in all_rows if r["env_steps"] <= random_end]
