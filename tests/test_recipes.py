@@ -95,3 +95,32 @@ def test_only_the_active_algorithm_section_is_validated():
     r = recipe_from_dict(data)
     assert r.td3.lr == 1e-3 and r.sections["ppo"] == {"not_a_key": 1}
     assert recipe_from_dict(r.to_dict()).to_dict() == r.to_dict()
+
+
+def test_a_misspelt_key_is_pointed_at_gcnts_name_for_a_known_alias_first():
+    from gcnt.recipes import RecipeError, load_recipe
+
+    quick = Path(__file__).parents[1] / "recipes/quickstart.yaml"
+    for given, hint in (("td3.learning_rat", "did you mean 'lr'"),
+                        ("td3.learning_rate", "did you mean 'lr'"),
+                        ("td3.discount", "did you mean 'gamma'"),
+                        ("td3.gama", "did you mean 'gamma'")):  # fmt: skip
+        with pytest.raises(RecipeError, match=hint):
+            load_recipe(quick, [f"{given}=1"])
+
+
+def test_a_recipes_base_may_name_a_shipped_recipe(tmp_path):
+    mine = tmp_path / "myrecipes" / "mine.yaml"
+    mine.parent.mkdir()
+    mine.write_text("base: quickstart\nseed: 3\n")
+    r = load_recipe(mine)
+    assert r.seed == 3 and r.task == "quickstart" and r.collector.total_frames == 24000
+    mine.write_text("base: smpenv/walker.yaml\n")
+    assert load_recipe(mine).task == "Walker++"
+    # a file of that name beside the recipe wins over the shipped one
+    (mine.parent / "quickstart").write_text("task: local\n")
+    mine.write_text("base: quickstart\n")
+    assert load_recipe(mine).task == "local"
+    mine.write_text("base: no_such_recipe\n")
+    with pytest.raises(RecipeError, match="no_such_recipe"):
+        load_recipe(mine)

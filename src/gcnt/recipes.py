@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Literal
 import yaml
 
 from gcnt.files import parse_yaml, write_text
-from gcnt.suggest import did_you_mean
+from gcnt.suggest import KEY_ALIASES, did_you_mean
 
 log = logging.getLogger(__name__)
 
@@ -492,7 +492,9 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
             )
             continue
         if key not in names:
-            hint = did_you_mean(str(key), known) or f"; known keys: {', '.join(known)}"
+            hint = did_you_mean(str(key), known, aliases=KEY_ALIASES) or (
+                f"; known keys: {', '.join(known)}"
+            )
             raise RecipeError(f"unknown recipe key {path!r}{hint}")
         tp = hints[key]
         if dataclasses.is_dataclass(tp):
@@ -667,7 +669,24 @@ def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
             f"{path}: base: expected the path of a recipe file, got "
             f"{'an empty string' if isinstance(base, str) else type(base).__name__}"
         )
-    return _merge(_read_yaml(path.parent / base, (*chain, resolved)), data)
+    return _merge(_read_yaml(_base_path(path, base), (*chain, resolved)), data)
+
+
+def _base_path(path: Path, base: str) -> Path:
+    """The file ``base:`` names in the recipe at ``path``: relative to the recipe's folder, or,
+    where no such file is there, a recipe that ships with gcnt by its name (``base: quickstart``,
+    ``base: smpenv/walker``), as ``gcnt train`` takes it."""
+    local = path.parent / base
+    if local.exists() or Path(base).is_absolute():
+        return local
+    from gcnt.data_folders import packaged_recipes
+
+    name = Path(base).as_posix().removeprefix("./").removeprefix("recipes/")
+    for candidate in (name, f"{name}.yaml"):
+        packaged = packaged_recipes() / candidate
+        if candidate.endswith(".yaml") and packaged.is_file():
+            return packaged
+    return local  # not there either: read (and refused) as written
 
 
 def _plugin_paths(data: dict[str, Any], path: Path) -> None:

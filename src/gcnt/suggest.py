@@ -7,16 +7,52 @@ from collections.abc import Iterable
 from pathlib import Path
 
 
-def did_you_mean(name: str, known: Iterable[str], n: int = 3, ignore_case: bool = False) -> str:
+#: what other codebases call a recipe key gcnt names otherwise (a misspelling of the alias is
+#: pointed at gcnt's key first)
+KEY_ALIASES = {
+    "learning_rate": "lr",
+    "actor_lr": "lr",
+    "critic_lr": "lr",
+    "discount": "gamma",
+    "polyak": "tau",
+    "target_update_rate": "tau",
+    "policy_freq": "policy_delay",
+    "policy_frequency": "policy_delay",
+    "expl_noise": "exploration_noise",
+    "start_timesteps": "init_random_frames",
+    "learning_starts": "init_random_frames",
+    "buffer_size": "buffer_size_per_robot",
+    "grad_clip": "max_grad_norm",
+    "grad_clipping_value": "max_grad_norm",
+    "clip_coef": "clip_epsilon",
+    "clip_range": "clip_epsilon",
+    "n_epochs": "epochs",
+    "num_epochs": "epochs",
+}
+
+
+def did_you_mean(
+    name: str,
+    known: Iterable[str],
+    n: int = 3,
+    ignore_case: bool = False,
+    aliases: dict[str, str] | None = None,
+) -> str:
     """``"; did you mean 'a' or 'b'?"`` for the closest entries of ``known``, or ``""``
-    (``ignore_case``: ``GCNT`` is close to ``gcnt``)."""
+    (``ignore_case``: ``GCNT`` is close to ``gcnt``; ``aliases``: other names of known entries,
+    whose entries come first where ``name`` is close to the alias)."""
     known = [str(k) for k in known]
+    first: list[str] = []
+    if aliases:
+        near = difflib.get_close_matches(str(name).lower(), list(aliases), n=n, cutoff=0.75)
+        first = [aliases[a] for a in near if aliases[a] in known]
     if ignore_case:
         spelt = {k.lower(): k for k in reversed(known)}
         lower = difflib.get_close_matches(str(name).lower(), list(spelt), n=n, cutoff=0.5)
         close = [spelt[k] for k in lower]
     else:
         close = difflib.get_close_matches(str(name), known, n=n, cutoff=0.5)
+    close = list(dict.fromkeys([*first, *close]))[:n]
     return f"; did you mean {' or '.join(map(repr, close))}?" if close else ""
 
 
