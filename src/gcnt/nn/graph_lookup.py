@@ -148,7 +148,15 @@ class GraphLookup(TensorDictModuleBase):
                 f"{self.owner}: observations have {obs.shape[-2]} limb slots but the robot table "
                 f"is padded to {self.num_limbs}; build the table with max_limbs={obs.shape[-2]}"
             )
-        if ids.device.type == "cpu" and ids.numel() and int(ids.max()) >= self.num_robots:
+        # the range is read on the host where that is free: a CPU tensor, not under vmap (a
+        # torchrl loss may vmap the chain over its critics) nor while compiling
+        if (
+            ids.device.type == "cpu"
+            and ids.numel()
+            and not torch._C._functorch.is_batchedtensor(ids)
+            and not torch.compiler.is_compiling()
+            and int(ids.max()) >= self.num_robots
+        ):
             raise IndexError(
                 f"{self.owner}: morph_id {int(ids.max())} out of range for a table of "
                 f"{self.num_robots} robots"
