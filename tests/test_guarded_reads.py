@@ -29,7 +29,7 @@ ALLOWED = {
     # YAML of a string (a value typed on the command line, a dict copied), not of a file
     ("recipes.py", "_apply_override", "yaml.load"),
     ("recipes.py", "recipe_from_dict", "yaml.safe_load"),
-    ("recipes.py", "_load_run_recipe", "yaml.safe_load"),
+    ("recipes.py", "recorded_recipe", "yaml.safe_load"),
     # a handle from open_regular, or an archive member of an import (capped by its header)
     ("rl/run_dir.py", "load_checkpoint", "torch.load"),
     ("rl/td3/replay.py", "load", "torch.load"),

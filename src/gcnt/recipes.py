@@ -794,43 +794,12 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     return recipe_from_dict(data, overrides, source=source)
 
 
-def load_run_recipe(
-    path: str | Path,
-    overrides: list[str] | None = None,
-    *,
-    anywhere: bool = False,
-    stored_robots: bool = True,
-) -> Recipe:
-    """The recipe a run recorded (its ``recipe.yaml``), to go on with here, with ``overrides``.
-
-    A run moves between machines: the switches that need CUDA (:attr:`CompileConfig.CUDA_ONLY`)
-    are dropped, in one warning line, when the run goes on without CUDA (e.g. a GPU run resumed
-    with ``device=cpu``), unless an override sets them (then refused as in any recipe). With
-    ``anywhere`` (a run read rather than trained on: evaluation, analysis, a fine-tune's source),
-    a run recorded on a CUDA device that this machine lacks is read on the CPU, in one info line;
-    a resumed run instead names the ``device=cpu`` override that moves it.
-
-    Nothing the run names is imported: its recorded plugins are checked against this command's
-    (:func:`gcnt.run_record.check_plugins`: one that the run needs and the command did not name
-    is an error naming it), and the recipe's ``plugins`` are this command's own. Its robots are
-    the ones it recorded, read from its own copies where not registered here
-    (:func:`gcnt.run_record.use_stored_robots`; ``stored_robots=False``: not yet, so that a
-    command can check what it was asked before the robot catalogues are loaded)."""
-    from gcnt import plugins
-    from gcnt.run_record import check_plugins, use_stored_robots
-
-    recorded = read_recipe_file(path)
-    check_plugins(Path(path).parent, recorded)
-    recipe = _load_run_recipe(recorded, path, overrides, anywhere)
-    recipe.plugins = plugins.session()
-    if stored_robots:
-        use_stored_robots(recipe, Path(path).parent, recorded)
-    return recipe
-
-
-def _load_run_recipe(
+def recorded_recipe(
     recorded: dict[str, Any], path: str | Path, overrides: list[str] | None, anywhere: bool
 ) -> Recipe:
+    """The recipe a run recorded (``recorded``, read from ``path``) with ``overrides``, to go on
+    with on this machine (:func:`gcnt.run_record.load_run_recipe`: the device and CUDA-only
+    switches as it describes)."""
     data = _as_recorded(recorded)
     overrides = list(overrides or [])
     given = {o.split("=", 1)[0].strip() for o in overrides if "=" in o}

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.files import MiB, read_regular, write_bytes
+from gcnt.recipes import Recipe, algorithm_names, read_recipe_file, recorded_recipe
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +133,6 @@ def use_stored_robots(
         _predates(run_dir)
         return
     from gcnt.morphology.catalogues import pin_robots
-    from gcnt.recipes import read_recipe_file
 
     if recorded is None:
         recorded = read_recipe_file(Path(run_dir) / "recipe.yaml")
@@ -213,7 +213,6 @@ def unregistered_names(recipe: Mapping[str, Any]) -> list[str]:
     method (``network.name``) and benchmark. Read without loading torch: a method or benchmark
     is built in, or was registered by code that has loaded its registry already."""
     from gcnt import builtin
-    from gcnt.recipes import algorithm_names
 
     networks = {*builtin.METHODS, *getattr(sys.modules.get("gcnt.nn.registry"), "NETWORKS", ())}
     registry = sys.modules.get("gcnt.envs.benchmark")
@@ -238,3 +237,36 @@ def check_plugins(run_dir: str | Path, recipe: Mapping[str, Any]) -> None:
     if not recorded:
         return
     plugins.check_recorded(recorded, run_dir, unregistered_names(recipe))
+
+
+def load_run_recipe(
+    path: str | Path,
+    overrides: list[str] | None = None,
+    *,
+    anywhere: bool = False,
+    stored_robots: bool = True,
+) -> Recipe:
+    """The recipe a run recorded (its ``recipe.yaml``), to go on with here, with ``overrides``.
+
+    A run moves between machines: the switches that need CUDA (:attr:`gcnt.recipes.CompileConfig.CUDA_ONLY`)
+    are dropped, in one warning line, when the run goes on without CUDA (e.g. a GPU run resumed
+    with ``device=cpu``), unless an override sets them (then refused as in any recipe). With
+    ``anywhere`` (a run read rather than trained on: evaluation, analysis, a fine-tune's source),
+    a run recorded on a CUDA device that this machine lacks is read on the CPU, in one info line;
+    a resumed run instead names the ``device=cpu`` override that moves it.
+
+    Nothing the run names is imported: its recorded plugins are checked against this command's
+    (:func:`check_plugins`: one that the run needs and the command did not name
+    is an error naming it), and the recipe's ``plugins`` are this command's own. Its robots are
+    the ones it recorded, read from its own copies where not registered here
+    (:func:`use_stored_robots`; ``stored_robots=False``: not yet, so that a
+    command can check what it was asked before the robot catalogues are loaded)."""
+    from gcnt import plugins
+
+    recorded = read_recipe_file(path)
+    check_plugins(Path(path).parent, recorded)
+    recipe = recorded_recipe(recorded, path, overrides, anywhere)
+    recipe.plugins = plugins.session()
+    if stored_robots:
+        use_stored_robots(recipe, Path(path).parent, recorded)
+    return recipe

@@ -6,7 +6,6 @@ import difflib
 from collections.abc import Iterable
 from pathlib import Path
 
-
 #: what other codebases call a recipe key gcnt names otherwise (a misspelling of the alias is
 #: pointed at gcnt's key first)
 KEY_ALIASES = {

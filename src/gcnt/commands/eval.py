@@ -123,7 +123,7 @@ def _run_recipe(path: Path):
     """The recipe of the run directory ``path``, read without loading torch, so that mistakes in
     what to evaluate are reported before anything heavy is loaded."""
     from gcnt.analysis.runs import RECIPE_FILE
-    from gcnt.recipes import load_run_recipe
+    from gcnt.run_record import load_run_recipe
 
     if not (path / RECIPE_FILE).exists():
         raise FileNotFoundError(f"{path}: no {RECIPE_FILE}; is this a gcnt run directory?")

@@ -23,7 +23,7 @@ import torch
 
 from gcnt import provenance
 from gcnt.files import GiB, append_text, open_regular, rename, save_torch, write_text
-from gcnt.recipes import Recipe, RecipeError, load_run_recipe, save_recipe
+from gcnt.recipes import Recipe, RecipeError, save_recipe
 from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
     metrics_line,
@@ -31,7 +31,9 @@ from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: 
     read_metrics_row,
     strict_json,
 )
+from gcnt.rl.run_lock import RunBusyError, RunDirError, run_lock  # noqa: F401 (RunDirError: raised and caught as gcnt.rl.run_dir's)
 from gcnt.rl.run_logger import RunLogger
+from gcnt.run_record import load_run_recipe
 
 if TYPE_CHECKING:  # annotations only: the robots' module is not loaded with the run directory
     from gcnt.morphology import Robot
@@ -51,10 +53,6 @@ WRITTEN = ("checkpoints", "eval", "videos", "wandb", "csv", "figures", METRICS_F
 
 class CheckpointError(ValueError):
     """A checkpoint that is missing, unreadable or does not fit the run's networks."""
-
-
-class RunDirError(ValueError):
-    """A run directory that cannot be made or written (a file in the way, no permission)."""
 
 
 class RunDir:
@@ -152,7 +150,7 @@ class RunDir:
         save_recipe(recipe, self.recipe_path)
 
     def load_recipe(self, overrides: list[str] | None = None, *, anywhere: bool = False) -> Recipe:
-        """The run's recipe to go on with on this machine (:func:`gcnt.recipes.load_run_recipe`:
+        """The run's recipe to go on with on this machine (:func:`gcnt.run_record.load_run_recipe`:
         ``anywhere`` for a run read, not trained on)."""
         if not self.recipe_path.exists():
             raise FileNotFoundError(f"{self.path}: no {RECIPE_FILE}; is this a gcnt run directory?")
@@ -194,7 +192,6 @@ class RunDir:
         command can be run again once the cause is fixed; whether it was removed. It is
         removed holding its lock: a directory that another process trains now (a start that
         won the race for it) is left alone."""
-        from gcnt.rl.run_lock import RunBusyError, run_lock
 
         if not self.path.is_dir() or self.path.is_symlink():
             return False

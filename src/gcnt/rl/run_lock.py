@@ -38,6 +38,10 @@ _HELD: dict[Path, int] = {}
 _NO_LOCKING = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS)
 
 
+class RunDirError(ValueError):
+    """A run directory that cannot be made or written (a file in the way, no permission)."""
+
+
 class RunBusyError(FileExistsError):
     """Another process is training the run directory (a FileExistsError, as for a run directory
     that already holds another run; this module imports nothing heavy, for ``gcnt sweep``)."""
@@ -116,8 +120,6 @@ def run_lock(run_dir: str | Path):
     if path in _HELD:  # this process already trains it (nested use)
         yield
         return
-    from gcnt.rl.run_dir import RunDirError
-
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as e:

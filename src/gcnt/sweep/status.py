@@ -14,12 +14,22 @@ import socket
 import subprocess
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from gcnt.files import MiB, read_json, write_text
 
-if TYPE_CHECKING:
-    from gcnt.sweep.spec import RunSpec
+
+class RecordedRun(Protocol):
+    """What a run's record is written from (:class:`gcnt.sweep.spec.RunSpec` has it): the state
+    module reads these fields and knows nothing else of a run spec."""
+
+    id: str
+    job_id: str | None
+    started: str | None
+    finished: str | None
+    returncode: int | None
+    seconds: float | None
+    eval_state: dict[str, str]
 
 
 #: states where a process or a Slurm job has the run: never started a second time
@@ -56,11 +66,11 @@ def now() -> str:
     return _dt.datetime.now().isoformat(timespec="seconds")
 
 
-def record_path(sweep_dir: str | Path, spec: RunSpec) -> Path:
+def record_path(sweep_dir: str | Path, spec: RecordedRun) -> Path:
     return Path(sweep_dir) / RECORDS / f"{spec.id.replace('/', '__')}.json"
 
 
-def read_record(sweep_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
+def read_record(sweep_dir: str | Path, spec: RecordedRun) -> dict[str, Any] | None:
     """What the run's last job wrote about itself (None: no job ran it yet)."""
     path = record_path(sweep_dir, spec)
     if not path.exists():
@@ -72,7 +82,7 @@ def read_record(sweep_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
-def write_record(sweep_dir: str | Path, spec: RunSpec, state: str, **extra: Any) -> None:
+def write_record(sweep_dir: str | Path, spec: RecordedRun, state: str, **extra: Any) -> None:
     """The job's record of its run (atomic: the sweep may read it at any time)."""
     path = record_path(sweep_dir, spec)
     path.parent.mkdir(parents=True, exist_ok=True)
