@@ -388,3 +388,19 @@ def test_eval_of_a_test_list_that_names_no_robots_is_one_line(tmp_path, capsys):
     assert gcnt_main(["train", str(recipe), f"run_dir={run}"]) == 0
     line = error_line(capsys, ["eval", str(run)])
     assert f"{run}: no robots to evaluate (Hopper++:test name none)" in line
+
+
+def test_a_malformed_override_imports_nothing_the_recipe_names(tmp_path):
+    """A received sweep's manifest can record an override that does not parse (``seed.x=1``)
+    before the ``plugins=[]`` gcnt sweep adds: the recipe's ``plugins:`` must not be imported
+    on the way to refusing it."""
+    from gcnt.recipes import RecipeError, load_recipe
+
+    marker = tmp_path / "RAN"
+    payload = _payload(tmp_path / "payload.py", marker)
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text(f"base: {ROOT / 'recipes/quickstart.yaml'}\nplugins: [{payload}]\n")
+    for bad in ("seed.x=1", "nokey", "td3.lr=[1"):
+        with pytest.raises(RecipeError):
+            load_recipe(recipe, [bad, "plugins=[]"])
+        assert not marker.exists(), bad

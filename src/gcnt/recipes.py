@@ -9,7 +9,6 @@ a comment; a YAML key that is not declared is an error that names it and suggest
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
 import importlib
@@ -785,9 +784,13 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     data = read_recipe_file(path)
     source = str(find_recipe(path))
     effective = copy.deepcopy(data)
-    with contextlib.suppress(RecipeError):  # a bad override: recipe_from_dict says what
+    try:
         for o in overrides or []:
             _apply_override(effective, o)
+    except RecipeError:
+        # a bad override: nothing the recipe names is imported (a later plugins=[] would not
+        # have been applied); recipe_from_dict says what is wrong
+        return recipe_from_dict(data, overrides, source=source)
     if isinstance(effective, dict) and effective.get("plugins"):
         # imported first: they may register the algorithm, the method, the benchmark
         import_recipe_plugins(effective, source)
