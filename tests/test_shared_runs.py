@@ -404,3 +404,34 @@ def test_a_malformed_override_imports_nothing_the_recipe_names(tmp_path):
         with pytest.raises(RecipeError):
             load_recipe(recipe, [bad, "plugins=[]"])
         assert not marker.exists(), bad
+
+
+@pytest.mark.parametrize("where", ["run_dir", "override", "log", "linked_parent"])
+def test_a_received_sweep_naming_a_place_outside_itself_is_refused(tmp_path, capsys, where):
+    """Its manifest's run directory, ``run_dir=`` override or log outside the sweep (also
+    through a link inside it): one line naming the run and the place, exit 2, nothing written
+    there."""
+    clean = tmp_path / "clean.yaml"
+    clean.write_text(f"base: {ROOT / 'recipes/quickstart.yaml'}\n")
+    sweep = tmp_path / "sw"
+    assert gcnt_main(["sweep", str(clean), "--dry-run", "--dir", str(sweep)]) == 0
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    manifest = json.loads((sweep / "manifest.json").read_text())
+    run = manifest["runs"][0]
+    if where == "run_dir":
+        run["run_dir"] = str(outside / "run")
+    elif where == "override":
+        run["overrides"].append(f"run_dir={outside / 'run'}")
+    elif where == "log":
+        run["log"] = str(outside / "run.log")
+    else:  # the run's parent folder, inside the sweep, is a link out of it
+        parent = sweep / Path(run["run_dir"]).parent
+        parent.parent.mkdir(parents=True, exist_ok=True)
+        parent.symlink_to(outside, target_is_directory=True)
+    (sweep / "manifest.json").write_text(json.dumps(manifest))
+    capsys.readouterr()
+    assert gcnt_main(["sweep", str(sweep), "--jobs", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "outside the sweep directory" in err and len(err.splitlines()) == 1
+    assert list(outside.iterdir()) == []

@@ -140,7 +140,7 @@ def test_submitit_debug_executor(tmp_path: Path) -> None:
 
 
 def _spec(tmp_path: Path, **kw) -> S.RunSpec:
-    run_dir = tmp_path / "run"
+    run_dir = tmp_path / "sw" / "run"  # a sweep's runs lie inside it
     base = dict(id="t/td3-gcnt/seed0", run_dir=str(run_dir), recipe=str(QUICKSTART), task="t")
     base.update(algo="td3", method="gcnt", seed=0, overrides=[f"run_dir={run_dir}"])
     return S.RunSpec(**{**base, **kw})

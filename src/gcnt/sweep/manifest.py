@@ -72,6 +72,7 @@ class Manifest:
             )  # fmt: skip
         for r in runs:
             _relocate(r, lambda p: _here(p, here, Path(was) if was else None))
+            _check_inside(r, here, path)
         return cls(sweep_dir, runs, data)
 
     def record_session(self) -> None:
@@ -167,6 +168,29 @@ def _here(path: str, base: Path, was: Path | None) -> str:
         except ValueError:
             pass
     return path
+
+
+def _check_inside(spec: RunSpec, sweep: Path, manifest: Path) -> None:
+    """A received sweep trains, resumes and logs inside itself only: every place a run of its
+    manifest names (its run directory, its ``run_dir=`` override, its log) must lie inside the
+    sweep directory once links are followed, else a SweepError naming the run and the place."""
+    root = sweep.resolve()
+    named = [
+        spec.run_dir,
+        *(o[len("run_dir=") :] for o in spec.overrides if o.startswith("run_dir=")),
+    ]
+    if spec.log:
+        named.append(spec.log)
+    for place in named:
+        try:
+            inside = Path(place).resolve().is_relative_to(root)
+        except (OSError, RuntimeError):  # a link loop
+            inside = False
+        if not inside:
+            raise SweepError(
+                f"{manifest}: run {spec.id} names {place}, outside the sweep directory {root} "
+                "(a sweep trains and logs inside itself only)"
+            )
 
 
 def _relocate(spec: RunSpec, move: Callable[[str], str]) -> None:
