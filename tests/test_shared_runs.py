@@ -435,3 +435,43 @@ def test_a_received_sweep_naming_a_place_outside_itself_is_refused(tmp_path, cap
     err = capsys.readouterr().err.strip()
     assert "outside the sweep directory" in err and len(err.splitlines()) == 1
     assert list(outside.iterdir()) == []
+
+
+@pytest.mark.parametrize("attack", ["swapped", "linked", "dotdot", "robots_link"])
+def test_a_stored_robot_copy_that_is_not_the_recorded_one_is_refused(tmp_path, capsys, attack):
+    """A received run's stored robot must be what it recorded: a copy swapped for another
+    robot's file, a copy that is a link out, a recorded sha256 that climbs out of robots/, or a
+    robots/ folder that is a link: one line naming it, exit 2, nothing evaluated."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    robot = mine / "myhopper.xml"
+    robot.write_text(HOPPER.read_text())
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=[])
+    run = tmp_path / "run"
+    assert gcnt_main(["train", str(recipe), f"run_dir={run}", f"env.robots=[{robot}]"]) == 0
+    shutil.rmtree(mine)
+    catalogues._PINNED.clear()
+    data = yaml.safe_load((run / "recipe.yaml").read_text())
+    sha = data["resolved"]["robots"]["index"]["myhopper"]["sha256"]
+    stored = run / "robots" / f"{sha}.xml"
+    other = (ROOT / "src/gcnt/data/morphologies/smpenv/hopper_5.xml").read_text()
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    if attack == "swapped":  # hopper_5's MJCF under hopper_3's hash
+        stored.write_text(other)
+    elif attack == "linked":
+        (outside / "x.xml").write_text(stored.read_text())
+        stored.unlink()
+        stored.symlink_to(outside / "x.xml")
+    elif attack == "dotdot":
+        (outside / "x.xml").write_text(stored.read_text())
+        data["resolved"]["robots"]["index"]["myhopper"]["sha256"] = str(outside / "x")
+        (run / "recipe.yaml").write_text(yaml.safe_dump(data))
+    else:
+        shutil.move(run / "robots", outside / "robots")
+        (run / "robots").symlink_to(outside / "robots", target_is_directory=True)
+    capsys.readouterr()
+    assert gcnt_main(["eval", str(run), "--robots", "train", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "myhopper" in err, err
+    assert not list((run / "eval").glob("*train*"))

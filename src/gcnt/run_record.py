@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import re
 import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Mapping, Sequence
@@ -29,7 +30,13 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.files import MiB, read_regular, write_bytes
-from gcnt.recipes import Recipe, algorithm_names, read_recipe_file, recorded_recipe
+from gcnt.recipes import (
+    Recipe,
+    RecipeError,
+    algorithm_names,
+    read_recipe_file,
+    recorded_recipe,
+)
 
 log = logging.getLogger(__name__)
 
@@ -148,18 +155,57 @@ def use_stored_robots(
         if not all(isinstance(e, Mapping) and isinstance(e.get("sha256"), str) for _, e in entries):
             continue
         stored = [
-            (n, folder / f"{e['sha256']}.xml", e.get("family"), e.get("catalogue"))
+            (n, folder / f"{_sha256(n, e, run_dir)}.xml", e.get("family"), e.get("catalogue"))
             for n, e in entries
         ]
         own = [s for (n, e), s in zip(entries, stored, strict=True) if not _registered(n, e, s)]
         if not own:
             continue
+        for name, path, *_ in own:
+            check_stored_copy(name, path, run_dir)
         if len(specs) == 1:
             pin_robots(specs[0], stored)
             continue
         for entry in own:
             pin_robots(entry[0], [entry])
         setattr(recipe.env, attr, list(names))
+
+
+#: the largest stored robot file read back (an MJCF of a robot: kilobytes)
+MAX_STORED_ROBOT_BYTES = 64 * MiB
+
+
+def _sha256(name: str, entry: Mapping[str, Any], run_dir: str | Path) -> str:
+    """The recorded sha256 of robot ``name``: 64 lower-case hex digits (it names a file in the
+    run's ``robots/``; anything else could name a file elsewhere), else a RecipeError."""
+    sha = entry["sha256"]
+    if not re.fullmatch(r"[0-9a-f]{64}", sha):
+        raise RecipeError(
+            f"{Path(run_dir) / 'recipe.yaml'}: robot {name!r} records sha256 {sha[:80]!r}, not "
+            "64 hex digits: its stored copy cannot be named"
+        )
+    return sha
+
+
+def check_stored_copy(name: str, path: Path, run_dir: str | Path) -> None:
+    """A run's stored copy of robot ``name`` is read only if it is a regular file (not a link)
+    inside the run's own ``robots/`` folder (itself no link) and its bytes hash to the sha256
+    the run recorded (the file's name): a swapped or planted copy is refused in one line, never
+    evaluated under the recorded robot's name."""
+    run = Path(run_dir)
+    folder = path.parent
+    inside = not folder.is_symlink() and folder.resolve().parent == run.resolve()
+    if not inside or path.is_symlink() or not path.resolve().parent == folder.resolve():
+        raise RecipeError(
+            f"{path}: robot {name!r}'s stored copy is not a file of the run's own "
+            f"{ROBOTS_DIR}/ folder (a link?)"
+        )
+    data = read_regular(path, MAX_STORED_ROBOT_BYTES, f"robot {name!r}'s stored copy", RecipeError)
+    if hashlib.sha256(data).hexdigest() != path.stem:
+        raise RecipeError(
+            f"{path}: robot {name!r}'s stored copy does not hash to the sha256 the run recorded "
+            "for it (the file was changed or swapped): refused"
+        )
 
 
 def _registered(name: str, entry: Mapping[str, Any], stored: tuple) -> bool:
