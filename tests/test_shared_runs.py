@@ -475,3 +475,26 @@ def test_a_stored_robot_copy_that_is_not_the_recorded_one_is_refused(tmp_path, c
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "myhopper" in err, err
     assert not list((run / "eval").glob("*train*"))
+
+
+def test_an_alias_bomb_in_a_received_runs_recipe_is_one_line_at_once(tmp_path, capsys):
+    """Every reader of a run's ``recipe.yaml`` (analysis, evaluation, the Python API) refuses a
+    document whose aliases expand past the cap, before building it."""
+    import time
+
+    import gcnt
+
+    run = _old_run(tmp_path)
+    bomb = "a: &a [x, x, x, x, x, x, x, x, x, x]\n"
+    for i in range(1, 9):
+        bomb += f"{chr(97 + i)}: &{chr(97 + i)} [" + ", ".join([f"*{chr(96 + i)}"] * 10) + "]\n"
+    (run / "recipe.yaml").write_text(bomb + (run / "recipe.yaml").read_text())
+    for argv in (["curves", str(run), "--out", str(tmp_path / "o")],
+                 ["eval", str(run), "--robots", "train", "--episodes", "1"]):  # fmt: skip
+        t0 = time.monotonic()
+        assert gcnt_main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert "aliases expand" in err and len(err.splitlines()) == 1, err
+        assert time.monotonic() - t0 < 30
+    with pytest.raises(Exception, match="aliases expand"):
+        gcnt.load_run(run)

@@ -24,6 +24,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO, TextIO
 
+import yaml
+
 KiB, MiB, GiB = 1 << 10, 1 << 20, 1 << 30
 #: the most read at once
 _CHUNK = 4 * MiB
@@ -116,15 +118,60 @@ def parse_json(text: str | bytes, path: str | Path, what: str, error: type[Excep
     return value
 
 
+#: the most YAML nodes a document gcnt reads may hold once its aliases are expanded (a recipe,
+#: a run's recorded recipe, a sweep's)
+MAX_YAML_NODES = 100_000
+
+
+class CappedLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` whose anchors and aliases are allowed (PyYAML's dumper writes them for
+    repeated values), but a document whose aliases would expand beyond :data:`MAX_YAML_NODES`
+    nodes, or refer to themselves, is refused as soon as it is composed, before any object is
+    built: an alias bomb costs nothing."""
+
+    def compose_document(self):
+        node = super().compose_document()
+        _expanded_size(node, {}, set())
+        return node
+
+
+def _expanded_size(node: yaml.Node, sizes: dict[int, int], open_: set[int]) -> int:
+    """The number of nodes of ``node`` with every alias expanded (each shared node counted once
+    per use, computed once); a yaml.MarkedYAMLError past :data:`MAX_YAML_NODES`."""
+    key = id(node)
+    if key in sizes:
+        return sizes[key]
+    if key in open_:
+        raise yaml.MarkedYAMLError(
+            problem="an alias refers to the value that contains it", problem_mark=node.start_mark
+        )
+    open_.add(key)
+    if isinstance(node, yaml.SequenceNode):
+        size = 1 + sum(_expanded_size(c, sizes, open_) for c in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        size = 1 + sum(
+            _expanded_size(k, sizes, open_) + _expanded_size(v, sizes, open_) for k, v in node.value
+        )
+    else:
+        size = 1
+    open_.discard(key)
+    if size > MAX_YAML_NODES:
+        raise yaml.MarkedYAMLError(
+            problem=f"its aliases expand to more than {MAX_YAML_NODES} values",
+            problem_mark=node.start_mark,
+        )
+    sizes[key] = size
+    return size
+
+
 def parse_yaml(
     text: str | bytes, path: str | Path, what: str, error: type[Exception], loader: Any = None
 ) -> Any:
-    """``text`` read as YAML (``loader``, default ``yaml.SafeLoader``); malformed or nested
+    """``text`` read as YAML (``loader``, default :class:`CappedLoader`: a safe loader that
+    refuses an alias bomb); malformed, expanding past :data:`MAX_YAML_NODES` values or nested
     deeper than :data:`MAX_DEPTH` is ``error`` naming ``path``."""
-    import yaml
-
     try:
-        value = yaml.load(text, Loader=loader or yaml.SafeLoader)
+        value = yaml.load(text, Loader=loader or CappedLoader)
     except RecursionError:
         value = _TOO_DEEP
     except yaml.YAMLError as e:

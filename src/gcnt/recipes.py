@@ -21,7 +21,7 @@ from typing import Any, ClassVar, Literal
 
 import yaml
 
-from gcnt.files import parse_yaml, write_text
+from gcnt.files import CappedLoader, parse_yaml, write_text
 from gcnt.suggest import KEY_ALIASES, did_you_mean
 
 log = logging.getLogger(__name__)
@@ -576,49 +576,11 @@ def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
 
 #: the largest recipe file read (a recipe is a few kilobytes)
 MAX_RECIPE_BYTES = 1 << 20
-#: the most YAML nodes a recipe document may hold once its aliases are expanded
-MAX_RECIPE_NODES = 100_000
 
 
-class RecipeLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` for recipes and overrides. Anchors and aliases are allowed (PyYAML's
-    dumper writes them for repeated values), but a document whose aliases would expand beyond
-    :data:`MAX_RECIPE_NODES` nodes, or refer to themselves, is refused as soon as it is composed,
-    before any object is built: an alias bomb costs nothing."""
-
-    def compose_document(self):
-        node = super().compose_document()
-        _expanded_size(node, {}, set())
-        return node
-
-
-def _expanded_size(node: yaml.Node, sizes: dict[int, int], open_: set[int]) -> int:
-    """The number of nodes of ``node`` with every alias expanded (each shared node counted once
-    per use, computed once); a yaml.MarkedYAMLError past :data:`MAX_RECIPE_NODES`."""
-    key = id(node)
-    if key in sizes:
-        return sizes[key]
-    if key in open_:
-        raise yaml.MarkedYAMLError(
-            problem="an alias refers to the value that contains it", problem_mark=node.start_mark
-        )
-    open_.add(key)
-    if isinstance(node, yaml.SequenceNode):
-        size = 1 + sum(_expanded_size(c, sizes, open_) for c in node.value)
-    elif isinstance(node, yaml.MappingNode):
-        size = 1 + sum(
-            _expanded_size(k, sizes, open_) + _expanded_size(v, sizes, open_) for k, v in node.value
-        )
-    else:
-        size = 1
-    open_.discard(key)
-    if size > MAX_RECIPE_NODES:
-        raise yaml.MarkedYAMLError(
-            problem=f"its aliases expand to more than {MAX_RECIPE_NODES} values",
-            problem_mark=node.start_mark,
-        )
-    sizes[key] = size
-    return size
+class RecipeLoader(CappedLoader):
+    """The loader of recipes and overrides: :class:`gcnt.files.CappedLoader` (anchors and
+    aliases allowed, an alias bomb refused as soon as it is composed)."""
 
 
 def _recipe_keys() -> set[str]:
