@@ -40,15 +40,20 @@ def _old_run(tmp_path: Path) -> Path:
     return run
 
 
-def test_a_run_on_a_robot_file_evaluates_after_the_file_is_gone(tmp_path, capsys):
+def _run_on_robot_file(tmp_path: Path) -> tuple[Path, Path]:
+    """A tiny run trained on a robot file of its own (``mine/myhopper.xml``): (run, folder)."""
     mine = tmp_path / "mine"
     mine.mkdir()
     robot = mine / "myhopper.xml"
     robot.write_text(HOPPER.read_text())
     recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=[])
     run = tmp_path / "run"
-    argv = ["train", str(recipe), f"run_dir={run}", f"env.robots=[{robot}]"]
-    assert gcnt_main(argv) == 0
+    assert gcnt_main(["train", str(recipe), f"run_dir={run}", f"env.robots=[{robot}]"]) == 0
+    return run, mine
+
+
+def test_a_run_on_a_robot_file_evaluates_after_the_file_is_gone(tmp_path, capsys):
+    run, mine = _run_on_robot_file(tmp_path)
     record = yaml.safe_load((run / "recipe.yaml").read_text())["resolved"]["robots"]
     assert record["train"] == ["myhopper"]
     sha = record["index"]["myhopper"]["sha256"]
@@ -442,13 +447,7 @@ def test_a_stored_robot_copy_that_is_not_the_recorded_one_is_refused(tmp_path, c
     """A received run's stored robot must be what it recorded: a copy swapped for another
     robot's file, a copy that is a link out, a recorded sha256 that climbs out of robots/, or a
     robots/ folder that is a link: one line naming it, exit 2, nothing evaluated."""
-    mine = tmp_path / "mine"
-    mine.mkdir()
-    robot = mine / "myhopper.xml"
-    robot.write_text(HOPPER.read_text())
-    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=[])
-    run = tmp_path / "run"
-    assert gcnt_main(["train", str(recipe), f"run_dir={run}", f"env.robots=[{robot}]"]) == 0
+    run, mine = _run_on_robot_file(tmp_path)
     shutil.rmtree(mine)
     catalogues._PINNED.clear()
     data = yaml.safe_load((run / "recipe.yaml").read_text())
