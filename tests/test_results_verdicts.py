@@ -13,8 +13,14 @@ from gcnt.analysis.verdict import detectable, power_for, welch
 
 RESULTS = Path(__file__).parents[1] / "docs/results"
 SCRIPTS = sorted(RESULTS.glob("*/verdict.py"))
-#: the p values each study's page states, in the order its script prints them
-PUBLISHED = {"study4": [0.149, 0.14, 0.94, 0.048]}
+#: the p values each study's page states, in the order its script prints them (None: a test
+#: the script prints that the page does not state)
+PUBLISHED = {
+    "study4": [0.149, 0.14, 0.94, 0.048],
+    "ft-fair": [0.24, 0.13, 0.065, 0.059, None, 0.45],
+}
+#: where the page states a bound over many tests instead: the smallest p it allows
+SMALLEST_P = {"walker": 0.28}
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=[s.parent.name for s in SCRIPTS])
@@ -23,12 +29,18 @@ def test_a_verdict_recomputes_from_the_published_seed_files(script):
         [sys.executable, str(script)], capture_output=True, text=True, check=True
     ).stdout
     ps = [float(p) for p in re.findall(r"p = ([0-9.]+);", out)]
-    expected = PUBLISHED.get(script.parent.name)
+    study = script.parent.name
+    if study in SMALLEST_P:
+        assert ps and min(ps) >= SMALLEST_P[study]
+        return
+    expected = PUBLISHED.get(study)
     if expected is None:  # a study still running: its script runs on what was reached
-        assert ps or "no runs" in out
+        assert ps or "no runs" in out or "reached" in out
         return
     assert len(ps) == len(expected)
     for p, stated in zip(ps, expected, strict=True):
+        if stated is None:
+            continue
         digits = len(str(stated).split(".")[1])
         assert round(p, digits) == stated
         assert f"{stated}" in (RESULTS / "README.md").read_text()
