@@ -284,3 +284,34 @@ def test_a_start_refused_by_a_racing_one_leaves_the_winner_directory(
         line = error_line(capsys, ["train", str(recipe_file), f"run_dir={run}"])
         assert f"{run} is being trained by process" in line, line
         assert run.is_dir() and (run / ".lock").is_file()  # the winner's, still there
+
+
+@pytest.mark.parametrize("where", ["robots", "checkpoints/buffers", "checkpoints/last.pt"])
+def test_a_link_at_a_folder_or_the_checkpoint_inside_a_run_is_refused_before_training(
+    tmp_path, capsys, where
+):
+    """A folder gcnt writes into (the stored robots, the replay's folder) or the checkpoint
+    itself as a link out of the run: ``train --resume`` refuses it in one line before any
+    training (nothing trained is lost, nothing written outside)."""
+    from cli_helpers import tiny_td3_recipe
+
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=[])
+    run = tmp_path / "run"
+    assert gcnt(["train", str(recipe), f"run_dir={run}", "td3.checkpoint_buffers=true"]) == 0
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    target = run / where
+    if target.exists():
+        moved = outside / target.name
+        shutil.move(target, moved)
+        target.symlink_to(moved, target_is_directory=moved.is_dir())
+    else:
+        target.symlink_to(outside, target_is_directory=True)
+    before = sorted(p.name for p in outside.rglob("*"))
+    metrics = (run / "metrics.jsonl").read_text()
+    capsys.readouterr()
+    assert gcnt(["train", "--resume", str(run), "collector.total_frames=80"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "link" in err and where.split("/")[-1] in err, err
+    assert sorted(p.name for p in outside.rglob("*")) == before
+    assert (run / "metrics.jsonl").read_text() == metrics

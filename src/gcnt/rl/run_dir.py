@@ -47,8 +47,23 @@ CHECKPOINT = "checkpoints/last.pt"
 STEP_FILES = {"eval": ".json", "videos": ".mp4"}
 #: the folder inside those for what a resumed run repeats (:meth:`RunDir.set_aside_after`)
 SUPERSEDED = "superseded"
-#: what gcnt writes into inside a run directory: folders, and the log it appends to
-WRITTEN = ("checkpoints", "eval", "videos", "wandb", "csv", "figures", METRICS_FILE)
+#: what gcnt writes into inside a run directory: folders (their nested folders too: a link
+#: there would take the writes out as well), the checkpoint, and the log it appends to
+WRITTEN = (
+    "checkpoints",
+    "checkpoints/buffers",
+    CHECKPOINT,
+    "eval",
+    f"eval/{SUPERSEDED}",
+    "videos",
+    f"videos/{SUPERSEDED}",
+    "robots",
+    "robots/assets",
+    "wandb",
+    "csv",
+    "figures",
+    METRICS_FILE,
+)
 
 
 class CheckpointError(ValueError):
@@ -110,8 +125,8 @@ class RunDir:
 
     @property
     def buffers_dir(self) -> Path:
-        """Where an algorithm may checkpoint large data (replay buffers)."""
-        return self.path / "checkpoints" / "buffers"
+        """Where an algorithm may checkpoint large data (replay buffers; see :meth:`inside`)."""
+        return self.inside("checkpoints/buffers")
 
     def create(self, recipe: Recipe) -> None:
         """Make the directory and write the recipe and the provenance of the process creating
