@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 
+import pytest
 from source_scan import calls, unguarded
 from source_scan import mode as mode_of
 
@@ -127,3 +128,42 @@ def test_the_scan_sees_plain_writes():
         ("g", "savefig"),
         ("h", "replace"),
     ]
+
+
+def test_a_full_disk_while_writing_names_the_file(tmp_path, monkeypatch):
+    """A write that fails mid-way (the disk fills at the write, the flush, or inside torch's
+    writer) is an OSError naming the file gcnt was writing, which the CLI prints in its line."""
+    import errno
+
+    import torch
+
+    from gcnt import files
+
+    real = files.open_append
+
+    def filling(path):
+        f = real(path)
+
+        def write(text):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        f.write = write
+        return f
+
+    monkeypatch.setattr(files, "open_append", filling)
+    log = tmp_path / "metrics.jsonl"
+    with pytest.raises(OSError) as e:
+        files.append_text(log, "{}\n")
+    assert e.value.filename == str(log) and e.value.errno == errno.ENOSPC
+
+    def torch_full(obj, f):
+        raise RuntimeError(
+            "[enforce fail at inline_container.cc] . PytorchStreamWriter failed writing file data/0: file write failed"
+        )
+
+    monkeypatch.setattr(torch, "save", torch_full)
+    ckpt = tmp_path / "last.pt"
+    with pytest.raises(OSError) as e:
+        files.save_torch({"a": 1}, ckpt)
+    assert e.value.filename == str(ckpt) and not ckpt.exists()
+    assert not list(tmp_path.glob(".*last.pt"))  # the temporary file removed

@@ -19,6 +19,7 @@ import errno
 import json
 import os
 import secrets
+import shutil
 import stat
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -320,7 +321,14 @@ def save_torch(obj: Any, path: str | Path) -> None:
     import torch
 
     with writing(path) as f:
-        torch.save(obj, f)
+        try:
+            torch.save(obj, f)
+        except RuntimeError as e:  # torch's writer reports a failed write (a full disk) so
+            if "write" not in str(e):
+                raise
+            full = shutil.disk_usage(Path(path).parent).free < (1 << 20)
+            code = errno.ENOSPC if full else errno.EIO
+            raise OSError(code, os.strerror(code), str(path)) from None
 
 
 def rename(src: str | Path, dst: str | Path) -> None:
@@ -360,9 +368,13 @@ def open_append(path: str | Path) -> TextIO:
 
 
 def append_text(path: str | Path, text: str) -> None:
-    """Append ``text`` to ``path`` (:func:`open_append`)."""
-    with open_append(path) as f:
-        f.write(text)
+    """Append ``text`` to ``path`` (:func:`open_append`); an OSError (a full disk at the write
+    or the flush) names ``path``."""
+    try:
+        with open_append(path) as f:
+            f.write(text)
+    except OSError as e:
+        raise _name_errors(path, e) from None
 
 
 def check_output(path: str | Path) -> None:
