@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from pathlib import Path
 
 import pytest
 from cli_helpers import error_line
@@ -79,3 +80,27 @@ def test_an_eval_link_out_of_the_run_directory_is_refused(trained, tmp_path, cap
     line = error_line(capsys, ["eval", str(run), "--robots", "train", "--episodes", "1"])
     assert "a link out of the run directory" in line
     assert not any(elsewhere.iterdir())
+
+
+def test_a_huge_sparse_metrics_log_is_one_line_not_a_memory_error(tmp_path, capsys):
+    """A run's ``metrics.jsonl`` made a 1 GiB file of zeros (sparse: no disk used): read a line
+    at a time, its first line is refused past the line cap, by ``gcnt curves`` and
+    ``gcnt.load_run``, without reading the rest."""
+    import time
+
+    import gcnt
+    from gcnt.cli import main
+
+    run = tmp_path / "run"
+    shutil.copytree(Path(__file__).parent / "data" / "td3_run_b52e8ec", run)
+    with open(run / "metrics.jsonl", "wb") as f:
+        f.truncate(1 << 30)
+    t0 = time.monotonic()
+    with pytest.raises(MetricsFileError, match="line 1: longer than"):
+        read_metrics(run / "metrics.jsonl")
+    assert main(["curves", str(run), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "longer than" in err and len(err.splitlines()) == 1
+    with pytest.raises(Exception, match="longer than"):
+        gcnt.load_run(run).metrics()
+    assert time.monotonic() - t0 < 60

@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gcnt.files import GiB, read_regular, too_deep
+from gcnt.files import GiB, open_regular, too_deep
 
 log = logging.getLogger(__name__)
 
@@ -53,40 +53,51 @@ def read_metrics_row(row: Any) -> Any:
 
 #: the largest metrics log read (a row per log interval: a paper-scale run writes a few MiB)
 MAX_METRICS_BYTES = 4 * GiB
+#: the longest metrics row read (a row of a few hundred robots' returns: tens of KiB)
+MAX_LINE_BYTES = 1 << 20
 
 
 def read_metrics(path: str | Path) -> list[dict[str, Any]]:
     """The rows of the metrics file ``path`` (none when it does not exist), ``null`` read as
-    NaN. An incomplete last line is dropped with a warning; a line before it that is not a
-    JSON object raises MetricsFileError naming the file and line."""
+    NaN, read a line at a time (a line longer than :data:`MAX_LINE_BYTES`, as a file of zeros
+    is, is refused without reading the rest). An incomplete last line is dropped with a
+    warning; a line before it that is not a JSON object raises MetricsFileError naming the
+    file and line."""
     path = Path(path)
     if not path.exists() and not path.is_symlink():
         return []
-    raw = read_regular(path, MAX_METRICS_BYTES, "a metrics log is JSON lines", MetricsFileError)
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise MetricsFileError(f"{path}: not a text file; a metrics log is JSON lines") from None
-    lines = text.splitlines()
-    rows = []
-    for number, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            row = json.loads(line)
-        except (json.JSONDecodeError, RecursionError):
-            row = None
-        if isinstance(row, dict) and too_deep(row):
-            row = None
-        if isinstance(row, dict):
-            rows.append(read_metrics_row(row))
-        elif number == len(lines):
-            _warn_incomplete(path, number)
-        else:
-            raise MetricsFileError(
-                f"{path}, line {number}: not a metrics row (the file is damaged; was it written "
-                "by two runs at once or edited?)"
-            )
+    what = "a metrics log is JSON lines"
+    rows: list[dict[str, Any]] = []
+    bad = 0  # the last line that was not a row (fatal once another line follows it)
+    number = 0
+    with open_regular(path, MAX_METRICS_BYTES, what, MetricsFileError) as f:
+        while line := f.readline(MAX_LINE_BYTES + 1):
+            number += 1
+            if bad:
+                raise MetricsFileError(
+                    f"{path}, line {bad}: not a metrics row (the file is damaged; was it written "
+                    "by two runs at once or edited?)"
+                )
+            if len(line) > MAX_LINE_BYTES:
+                raise MetricsFileError(
+                    f"{path}, line {number}: longer than {MAX_LINE_BYTES >> 20} MiB; {what}"
+                )
+            try:
+                text = line.decode("utf-8")
+            except UnicodeDecodeError:
+                raise MetricsFileError(f"{path}, line {number}: not text; {what}") from None
+            if not text.strip():
+                continue
+            try:
+                row = json.loads(text)
+            except (json.JSONDecodeError, RecursionError):
+                row = None
+            if isinstance(row, dict) and not too_deep(row):
+                rows.append(read_metrics_row(row))
+            else:
+                bad = number
+    if bad:
+        _warn_incomplete(path, bad)
     return rows
 
 
