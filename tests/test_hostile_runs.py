@@ -89,7 +89,9 @@ def test_a_link_out_of_the_run_directory_is_refused_before_any_work(
         shutil.rmtree(target)
     else:
         target.unlink(missing_ok=True)
+    (victim / name).parent.mkdir(parents=True, exist_ok=True)  # a nested folder's parent
     (victim / name).mkdir(exist_ok=True) if "." not in name else (victim / name).touch()
+    target.parent.mkdir(parents=True, exist_ok=True)
     target.symlink_to(victim / name)
     before = {p: p.stat().st_mtime_ns for p in victim.rglob("*") if p.is_file()}
     for argv in (
