@@ -186,9 +186,10 @@ def trim_table(table: dict, rows: Sequence[int] | None, limbs: int) -> dict:
     row as it is). Real limbs come first in every row (:func:`robot_table`), so a robot with at
     most ``limbs`` limbs keeps every real value; only padding is dropped."""
     out = {}
+    moved = rows is not None and list(rows) != list(range(len(rows)))  # a row stands in
     index = None
     for key, value in table.items():
-        if rows is not None and list(rows) != list(range(value.shape[0])):
+        if moved:
             if index is None or index.device != value.device:
                 index = torch.tensor(list(rows), device=value.device)
             value = value.index_select(0, index)
