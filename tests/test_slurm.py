@@ -23,6 +23,7 @@ from cli_helpers import TINY_SWEEP_OVERRIDES
 from gcnt import sweep as S
 from gcnt.analysis.runs import Run
 from gcnt.cli import main
+from gcnt.files import write_text
 from gcnt.rl.run_dir import RunDir
 from gcnt.rl.run_lock import holder
 
@@ -171,6 +172,10 @@ def test_a_job_at_its_time_limit_checkpoints_requeues_and_finishes(slurm, tmp_pa
         )
 
     _wait(requeued, timeout=400, every=1)
+    job = f"JobId={spec['job_id']}"
+    # held while the test edits its recipe: on a loaded machine Slurm's hold on a requeued job
+    # (its BeginTime) may lapse before the edit, and the job would read a half-written file
+    subprocess.run(["scontrol", "hold", job], check=False, capture_output=True)
     steps = RunDir(run).load_checkpoint()["env_steps"]
     assert steps > 0  # written on Slurm's warning, not by the schedule (interval 100000)
     log = Path(spec["log"]).read_text()
@@ -181,10 +186,11 @@ def test_a_job_at_its_time_limit_checkpoints_requeues_and_finishes(slurm, tmp_pa
     # Slurm's hold on a requeued job (about two minutes of BeginTime) is lifted
     recipe = yaml.safe_load((run / "recipe.yaml").read_text())
     recipe["collector"]["total_frames"] = max(steps, recipe["td3"]["init_random_frames"]) + 100
-    (run / "recipe.yaml").write_text(yaml.safe_dump(recipe))
-    job = f"JobId={spec['job_id']}"
+    write_text(run / "recipe.yaml", yaml.safe_dump(recipe))
     subprocess.run(["scontrol", "update", job, "TimeLimit=10", "StartTime=now"], check=True)
-    assert main(["sweep", str(sw)]) == 0  # follows the requeued job; submits nothing new
+    subprocess.run(["scontrol", "release", job], check=False, capture_output=True)
+    # follows the requeued job; submits nothing new
+    assert main(["sweep", str(sw)]) == 0, Path(spec["log"]).read_text()[-4000:]
     (spec,) = _manifest(sw)
     assert spec["state"] == "done" and Run(run).finished()
     assert len(_jobs(sw.name)) == 1
