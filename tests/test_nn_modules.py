@@ -314,6 +314,7 @@ def test_attention_equals_torch_sdpa_with_its_gradients(length, mask_heads):
     mask = torch.ones(n, length, dtype=torch.bool)
     mask[: n // 2, (length + 1) // 2 :] = False  # padded limbs on half the samples
     results = []
+
     def token_major(t):  # [N, H, L, d_h] -> [N, L, H * d_h], head h in its own columns
         return t.transpose(1, 2).reshape(n, length, h * d)
 

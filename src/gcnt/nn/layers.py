@@ -89,7 +89,8 @@ def attention(
         return out.transpose(1, 2).reshape(n, length, d)
     scale = 1.0 / math.sqrt(dh)
     outs = []
-    for h, (qh, kh, vh) in enumerate(zip(q.split(dh, -1), k.split(dh, -1), v.split(dh, -1))):
+    per_head = zip(q.split(dh, -1), k.split(dh, -1), v.split(dh, -1), strict=True)
+    for h, (qh, kh, vh) in enumerate(per_head):
         mask = attn_mask[:, h if attn_mask.shape[1] > 1 else 0].expand(n, length, length)
         logits = torch.baddbmm(mask, qh, kh.transpose(1, 2), alpha=scale)
         # the max only keeps exp() in range: it cancels out of the result, so no gradient through it
