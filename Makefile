@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.gcnt-installed
 
-.PHONY: train test test-bench test-gpu-emulated test-slurm lint install clean-venv
+.PHONY: train test test-slow test-bench test-gpu-emulated test-slurm lint install clean-venv
 
 install: $(STAMP)
 
@@ -22,11 +22,17 @@ $(STAMP): pyproject.toml constraints.txt
 train: $(STAMP)
 	$(BIN)/gcnt train recipes/quickstart.yaml
 
-# The whole suite, then (in a process of its own, so that no earlier test's state reaches it)
-# the Slurm checks: as root they install slurm-wlm and munge (apt-get) and check sweeps against
-# a single-node Slurm they start (tests/test_slurm.py; skipped, saying why, elsewhere).
+# The suite without its end-to-end runs of many seconds (marked slow): about 5 minutes on an
+# idle 2-core machine.
 test: $(STAMP)
-	$(BIN)/python -m pytest -m "not slurm and not bench"
+	$(BIN)/python -m pytest -m "not slow and not bench"
+
+# The end-to-end runs (sweeps, signals, worker deaths, plugins, the wheel), then (in a process of
+# its own, so that no earlier test's state reaches it) the Slurm checks: as root they install
+# slurm-wlm and munge (apt-get) and check sweeps against a single-node Slurm they start
+# (tests/test_slurm.py; skipped, saying why, elsewhere). CI runs it after `make test`.
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -m "slow and not slurm and not bench"
 	$(BIN)/python -m pytest -m slurm tests/test_slurm.py
 
 # gcnt bench-train on every shipped recipe with a tiny budget (tests/test_bench_every_recipe.py):

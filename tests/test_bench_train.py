@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 
+import pytest
+
 from gcnt.bench.td3 import end_to_end_rate
 from gcnt.cli import main as gcnt
 from gcnt.recipes import load_recipe
@@ -20,6 +22,7 @@ def test_end_to_end_counts_the_updates_of_the_timed_steps_only(recipe_file):
     assert out["updates_per_s"] == out["env_steps_per_s"]
 
 
+@pytest.mark.slow
 def test_the_report_is_not_mixed_with_training_log_lines(recipe_file, caplog, capsys):
     caplog.set_level(logging.INFO)
     argv = ["bench-train", str(recipe_file), "--updates", "2", "--steps", "10", "--warmup", "8"]
@@ -33,6 +36,7 @@ def test_the_report_is_not_mixed_with_training_log_lines(recipe_file, caplog, ca
     assert logging.getLogger("gcnt").level <= logging.INFO
 
 
+@pytest.mark.slow
 def test_the_profiler_lines_stay_out_of_the_report():
     """torch's profiler writes ``USDT: ... profiler_start`` lines to file descriptor 2 whenever
     ``count_launches`` profiles; they are left out, anything else written there is kept."""
@@ -124,6 +128,7 @@ def test_matrix_products_of_a_linear_layer_and_their_flops():
     assert product_flops("bmm", (3, 2, 5), (3, 5, 7)) == 2 * 3 * 2 * 5 * 7
 
 
+@pytest.mark.slow
 def test_the_compiled_line_and_the_shapes_peak(recipe_file, capsys, monkeypatch):
     """``--compiled`` adds compiled ÷ eager for the bare update and the compile time (torch.compile
     left out here: the line's making, not inductor, is under test); every schedule reports the

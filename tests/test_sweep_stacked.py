@@ -8,6 +8,7 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
 from cli_helpers import TINY_SWEEP_OVERRIDES
 
 from gcnt import sweep as S
@@ -63,6 +64,7 @@ def test_the_paper_schedule_and_ppo_do_not_stack(tmp_path: Path, caplog) -> None
     assert all(len(g) == 1 for g in local.stacked_groups(ppo, True))
 
 
+@pytest.mark.slow
 def test_a_stacked_sweep_trains_the_seeds_in_one_process_then_evaluates_each(
     tmp_path: Path,
 ) -> None:
@@ -84,6 +86,7 @@ def test_a_stacked_sweep_trains_the_seeds_in_one_process_then_evaluates_each(
     assert all(any("hopper_4" in e.robots for e in r.evals()) for r in runs)
 
 
+@pytest.mark.slow
 def test_a_refused_stacked_start_trains_the_seeds_one_by_one(tmp_path: Path, monkeypatch) -> None:
     # a stacked start that exits with an error before making any run directory
     monkeypatch.setattr(

@@ -43,6 +43,7 @@ def runs():
     return plain, probed
 
 
+@pytest.mark.slow
 def test_the_probe_is_logged_and_changes_nothing_of_training(runs):
     plain, probed = runs
     rows = [r for r in probed if "probe/q1_mean" in r]
@@ -57,6 +58,7 @@ def test_the_probe_is_logged_and_changes_nothing_of_training(runs):
     assert strip == [{k: v for k, v in r.items() if "per_s" not in k} for r in plain]
 
 
+@pytest.mark.slow
 def test_episode_lengths_are_logged_beside_returns(runs):
     plain, _ = runs
     with_returns = [r for r in plain if "train_return/mean" in r]
