@@ -58,45 +58,33 @@ def last_linear(net: nn.Module) -> nn.Linear:
 SHORT_SEQUENCE = 32
 
 
-def attention(
-    q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor, heads: int, dropout_p: float = 0.0
-) -> Tensor:
-    """Multi-head softmax(q·kᵀ/√d_h + attn_mask)·v for ``q, k, v`` [N, L, d] (head ``h`` is
-    columns ``h·d_h`` to ``(h+1)·d_h``, d_h = d / heads) and an additive float mask broadcastable
-    to [N, heads, L, L]; the result [N, L, d] in the same column layout:
-    ``F.scaled_dot_product_attention``'s result on the heads.
+def attention(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor, dropout_p: float = 0.0) -> Tensor:
+    """softmax(q·kᵀ/√d_h + attn_mask)·v for ``q, k, v`` [N, H, L, d_h] and an additive float
+    mask broadcastable to [N, H, L, L]: ``F.scaled_dot_product_attention``'s result.
 
     Robots have a handful of limbs, and for so few tokens torch's CPU kernels are slow where
     the arithmetic is tiny: the flash kernel tiles for long sequences (0.8 ms for 384 robots × 2
-    heads × 5 limbs on one core, a batched matmul 0.4 ms), ``torch.softmax`` over a last dim of 5
-    costs ~20 ns per element, and laying q, k and v out head-major ([N, H, L, d_h]) copies each of
-    them, forward and backward. On a CPU, without attention dropout and for up to
-    :data:`SHORT_SEQUENCE` tokens, each head therefore runs as two batched matmuls on its column
-    slice (a strided view: no copy; the backward of ``split`` is one ``cat``) and a softmax from
-    elementwise ops (max-subtracted, as every softmax kernel does); anything else goes to
-    ``F.scaled_dot_product_attention``.
+    heads × 5 limbs on one core, a batched matmul 0.4 ms), and ``torch.softmax`` over a last dim
+    of 5 costs ~20 ns per element. On a CPU, without attention dropout and for up to
+    :data:`SHORT_SEQUENCE` tokens, the same formula therefore runs as two batched matmuls and a
+    softmax from elementwise ops (max-subtracted, as every softmax kernel does); anything else
+    goes to ``F.scaled_dot_product_attention``.
     """
-    n, length, d = q.shape
-    dh = d // heads
+    n, h, length, d = q.shape
     if q.device.type != "cpu" or dropout_p > 0 or length > SHORT_SEQUENCE:
-
-        def split(t: Tensor) -> Tensor:
-            return t.reshape(n, length, heads, dh).transpose(1, 2)
-
-        out = F.scaled_dot_product_attention(
-            split(q), split(k), split(v), attn_mask=attn_mask, dropout_p=dropout_p
-        )
-        return out.transpose(1, 2).reshape(n, length, d)
-    scale = 1.0 / math.sqrt(dh)
-    outs = []
-    per_head = zip(q.split(dh, -1), k.split(dh, -1), v.split(dh, -1), strict=True)
-    for h, (qh, kh, vh) in enumerate(per_head):
-        mask = attn_mask[:, h if attn_mask.shape[1] > 1 else 0].expand(n, length, length)
-        logits = torch.baddbmm(mask, qh, kh.transpose(1, 2), alpha=scale)
-        # the max only keeps exp() in range: it cancels out of the result, so no gradient through it
-        e = (logits - logits.amax(-1, keepdim=True).detach()).exp()
-        outs.append(torch.bmm(e / e.sum(-1, keepdim=True), vh))
-    return torch.cat(outs, -1) if heads > 1 else outs[0]
+        return F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask, dropout_p=dropout_p)
+    b = n * h
+    mask = attn_mask.expand(n, h, length, length).reshape(b, length, length)
+    logits = torch.baddbmm(
+        mask,
+        q.reshape(b, length, d),
+        k.reshape(b, length, d).transpose(1, 2),
+        alpha=1.0 / math.sqrt(d),
+    )
+    # the max only keeps exp() in range: it cancels out of the result, so no gradient through it
+    e = (logits - logits.amax(-1, keepdim=True).detach()).exp()
+    weights = e / e.sum(-1, keepdim=True)
+    return torch.bmm(weights, v.reshape(b, length, d)).view(n, h, length, d)
 
 
 def key_padding_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
@@ -139,13 +127,10 @@ class EncoderLayer(nn.Module):
         nn.init.zeros_(self.proj.bias)
 
     def attention(self, x: Tensor, attn_mask: Tensor) -> Tensor:
-        q, kk, v = self.qkv(x).chunk(3, -1)
-        return self.proj(attention(q, kk, v, attn_mask, self.heads, self.dropout_p))
-
-    @property
-    def dropout_p(self) -> float:
-        """The attention weights' dropout: only while training."""
-        return self.dropout if self.training else 0.0
+        n, k, d = x.shape
+        q, kk, v = self.qkv(x).view(n, k, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
+        out = attention(q, kk, v, attn_mask, self.dropout if self.training else 0.0)
+        return self.proj(out.transpose(1, 2).reshape(n, k, d))
 
     def feed_forward(self, x: Tensor) -> Tensor:
         return self.ff2(self.drop(F.relu(self.ff1(x))))
@@ -223,11 +208,18 @@ class ContextAttentionLayer(EncoderLayer):
         self.norm_ctx = nn.LayerNorm(d_model)
 
     def context_attention(self, x: Tensor, ctx: Tensor, attn_mask: Tensor) -> Tensor:
-        d = x.shape[-1]
+        n, k, d = x.shape
         w, b = self.qkv.weight, self.qkv.bias
-        q, kk = F.linear(self.norm_ctx(ctx), w[: 2 * d], b[: 2 * d]).chunk(2, -1)
-        v = F.linear(x, w[2 * d :], b[2 * d :])
-        return self.proj(attention(q, kk, v, attn_mask, self.heads, self.dropout_p))
+        c = self.norm_ctx(ctx)
+
+        def heads(t: Tensor) -> Tensor:
+            return t.view(n, k, self.heads, d // self.heads).transpose(1, 2)
+
+        q = heads(F.linear(c, w[:d], b[:d]))
+        kk = heads(F.linear(c, w[d : 2 * d], b[d : 2 * d]))
+        v = heads(F.linear(x, w[2 * d :], b[2 * d :]))
+        out = attention(q, kk, v, attn_mask, self.dropout if self.training else 0.0)
+        return self.proj(out.transpose(1, 2).reshape(n, k, d))
 
     def forward(self, x: Tensor, ctx: Tensor, attn_mask: Tensor) -> Tensor:  # type: ignore[override]
         x = x + self.drop(self.context_attention(self.norm1(x), ctx, attn_mask))
