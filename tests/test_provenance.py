@@ -88,6 +88,37 @@ def test_where_git_cannot_tell_the_commit_is_none_with_the_reason(
     assert state["git_commit"] is None and state["git_note"] == "git is not installed"
 
 
+@needs_git
+def test_an_installed_package_names_the_commit_its_build_recorded(
+    tmp_path: Path, repo: Path, monkeypatch
+) -> None:
+    """A package outside any checkout reads the commit its build wrote (setup.py); a damaged
+    record is unknown with the reason; a checkout's own git state wins over a stray record."""
+    monkeypatch.setattr(P, "GIT_CACHE_S", -1.0)  # every query asks git
+    record = {"commit": "abc1234" + "0" * 33, "dirty": True}
+    installed = tmp_path / "site" / "gcnt"
+    tracked = repo / "src" / "gcnt"
+    for where in (installed, tracked):
+        where.mkdir(parents=True)
+        (where / "__init__.py").write_text("")
+        (where / P.BUILD_FILE).write_text(json.dumps(record))
+    monkeypatch.setattr(gcnt, "__file__", str(installed / "__init__.py"))
+    state = P.git_state()
+    assert (state["commit"], state["dirty"]) == (record["commit"], True)
+    assert state["note"] == "recorded by the build of gcnt"
+    assert P.this_code("tables").endswith("at commit abc1234-dirty")
+    for bad in ("{not json", json.dumps({"commit": "", "dirty": False}), "[]"):
+        (installed / P.BUILD_FILE).write_text(bad)
+        state = P.git_state()
+        assert state["commit"] is None and "not in a git checkout" in state["note"], state
+        assert P.BUILD_FILE in state["note"]
+    _git(repo, "add", "src/gcnt/__init__.py")
+    _git(repo, "commit", "-q", "-m", "package")
+    monkeypatch.setattr(gcnt, "__file__", str(tracked / "__init__.py"))
+    state = P.git_state()
+    assert (state["commit"], state["note"]) == (_git(repo, "rev-parse", "HEAD"), None)
+
+
 def test_the_runs_one_process_starts_together_ask_git_once(monkeypatch) -> None:
     asked = []
     monkeypatch.setattr(P, "_git_state", lambda repo: asked.append(repo) or P._unknown("x"))
