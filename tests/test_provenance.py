@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -50,10 +51,13 @@ def test_collect_records_the_commit_and_changes_to_tracked_files(repo: Path) -> 
     s = P.collect(["gcnt", "train", "x.yaml"], repo=repo)
     assert s["git_commit"] == _git(repo, "rev-parse", "HEAD") and s["git_dirty"] is False
     assert s["git_note"] is None and s["gcnt_version"] == gcnt.__version__
-    assert s["command"] == ["gcnt", "train", "x.yaml"] and s["cwd"]
+    assert s["command"] == ["gcnt", "train", "x.yaml"]
     assert set(s["packages"]) == set(P.PACKAGES) and s["packages"]["numpy"]
     assert s["python"] == ".".join(map(str, sys.version_info[:3]))
-    assert s["hostname"] and s["platform"] and s["started"]
+    assert s["platform"] and s["started"]
+    # what is handed on with a run: the host as a hash, no folder of this machine
+    assert s["host"] == P.host_hash() and socket.gethostname() not in s["host"]
+    assert not {"hostname", "cwd", "executable"} & set(s)
     json.dumps(s)  # plain JSON
     (repo / "new.txt").write_text("untracked\n")
     assert P.git_state(repo)["dirty"] is False  # untracked files are not changes

@@ -17,6 +17,7 @@ counts changes to tracked files only (as ``git describe --dirty``).
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import importlib.metadata
 import json
 import logging
@@ -61,9 +62,12 @@ def set_command(argv: Sequence[str]) -> None:
 
 def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None) -> dict[str, Any]:
     """This process's session: gcnt version, git state of ``repo`` (default: the checkout
-    holding the gcnt package, if any), Python, package versions, machine, CUDA (when torch is
-    loaded), ``argv`` (default: the command line) with the working folder, and the plugins
-    imported (:mod:`gcnt.plugins`: each one's file)."""
+    holding the gcnt package, if any), Python, package versions, platform, the host (a hash of
+    its name: whether sessions ran on one machine, not which), CUDA (when torch is loaded),
+    ``argv`` (default: the command line), and the plugins imported (:mod:`gcnt.plugins`: each
+    one's name, sha256 and where it was named). A run directory is handed on with this
+    record: no folder of this machine (working folder, Python executable, plugin files) and no
+    host name is in it."""
     git = git_state(repo)
     return {
         "gcnt_version": gcnt.__version__,
@@ -73,14 +77,17 @@ def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None
         "python": platform.python_version(),
         "packages": {name: _version(name) for name in PACKAGES},
         "platform": platform.platform(),
-        "hostname": socket.gethostname(),
+        "host": host_hash(),
         "cuda": _cuda(),
         "command": list(argv if argv is not None else (_command or sys.argv)),
-        "executable": sys.executable,
-        "cwd": os.getcwd(),
-        "plugins": plugins.loaded(),
+        "plugins": plugins.identities(via=True),
         "started": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
     }
+
+
+def host_hash(name: str | None = None) -> str:
+    """The first 16 hex digits of the sha256 of a host name (default: this machine's)."""
+    return hashlib.sha256((name or socket.gethostname()).encode()).hexdigest()[:16]
 
 
 #: seconds a query of gcnt's own checkout is reused: the runs one process starts together
