@@ -37,7 +37,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --evaluate: episodes per robot (default: 100 deterministic, 32 stochastic, "
         "as the recipe's eval.deterministic)",
     )
-    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <DIR>/figures; a run directory's beside it, <RUN>-figures)",
+    )
     add_names_option(p)
 
 
