@@ -185,6 +185,27 @@ def test_ppo_collector_workers_import_the_plugin(plugin, tmp_path):
     assert RunDir(tmp_path / "run").load_checkpoint()["env_steps"] >= 160
 
 
+def test_from_python_a_missing_plugin_is_named_with_the_call_that_loads_it(tmp_path):
+    """``gcnt.load_policy`` on a run of a plugin's method: the error says how to name the plugin
+    from Python as well as on the command line."""
+    import gcnt
+    from gcnt.plugins import PluginError
+    from gcnt.recipes import read_recipe_file
+
+    data = read_recipe_file(QUICKSTART)
+    data.pop("base", None)
+    data["network"] = {**data.get("network", {}), "name": "plugnet_elsewhere"}
+    data["resolved"] = {"plugins": [{"name": "my_methods.py", "sha256": "ab" * 32}]}
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "recipe.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(PluginError) as e:
+        gcnt.load_policy(run)
+    said = str(e.value)
+    assert "my_methods.py" in said and "--plugin" in said and "GCNT_PLUGINS" in said
+    assert "gcnt.plugins.load([PATH_OR_MODULE])" in said
+
+
 def test_a_written_recipe_names_plugin_files_without_their_folder(tmp_path):
     """recipe.yaml and the W&B config (``Recipe.to_dict``) hold no folder of this machine; the
     recipe in memory (what worker processes import) keeps the path."""

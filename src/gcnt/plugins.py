@@ -315,7 +315,8 @@ def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[st
             f"{run} names {', '.join(needed)}, which no code imported here registers; it was "
             f"trained with the plugin {first['name']}{sha}, which this command did not name "
             f"(gcnt never imports a run's plugins): pass it with `gcnt --plugin "
-            f"PATH_OR_MODULE ...` (or {ENV_VAR})"
+            f"PATH_OR_MODULE ...` (or {ENV_VAR}); from Python, call "
+            f"`gcnt.plugins.load([PATH_OR_MODULE])` first"
         )
 
 
