@@ -190,6 +190,32 @@ def test_zeroshot_command(sweep: Path, capsys) -> None:
     assert caption in capsys.readouterr().out
 
 
+def test_the_zeroshot_caption_counts_the_runs_its_table_shows(tmp_path: Path, capsys) -> None:
+    """Three runs, one with test robots evaluated: a table of one run, captioned "(1 run)"."""
+    from test_variants import gcnt_eval
+    from test_variants import make_run as variant_run
+
+    from gcnt import provenance
+
+    shown = variant_run(tmp_path, "gcnt", 0)
+    gcnt_eval(shown, {TEST[0]: 5.0})
+    variant_run(tmp_path, "gcnt", 1)  # no evaluation
+    untested = variant_run(tmp_path, "swat", 0)  # no test robots
+    recipe = yaml.safe_load((untested / "recipe.yaml").read_text())
+    recipe["env"]["test_robots"] = []
+    (untested / "recipe.yaml").write_text(yaml.safe_dump(recipe))
+    session = {"gcnt_version": "0.1.0", "git_commit": "abc1234" + "0" * 33, "git_dirty": False}
+    for run in find_runs([tmp_path]):
+        provenance.add_session(run.path, session)
+    out = tmp_path / "t"
+    assert main(["zeroshot", str(tmp_path), "--out", str(out)]) == 0
+    expected = "runs from gcnt 0.1.0 at commit abc1234 (1 run)"
+    assert (out / "zeroshot.caption.txt").read_text() == expected + "\n"
+    assert expected in capsys.readouterr().out
+    table = json.loads((out / "zeroshot.json").read_text())
+    assert [r.path for r in zeroshot.shown_runs(table, find_runs([tmp_path]))] == [shown]
+
+
 def test_variants_command(sweep: Path) -> None:
     caption = _with_provenance(sweep)
     assert (

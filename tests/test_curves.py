@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from gcnt.analysis import curves
-from gcnt.analysis.runs import find_runs
+from gcnt.analysis.runs import default_out, find_runs
 from gcnt.cli import main
 from gcnt.rl.evaluate import summarize, write_eval
 from gcnt.rl.run_dir import RunDir
@@ -139,6 +139,25 @@ def test_curves_command_eval_metric_and_null_metrics(tmp_path: Path, capsys) -> 
     assert main(["curves", str(tmp_path), "--points", "5"]) == 0
     assert len(read_csv(tmp_path / "figures" / "curves.csv")) == 5
     assert main(["curves", str(tmp_path), "--points", "1"]) == 2
+
+
+def test_a_run_directory_given_alone_gets_its_outputs_beside_it(tmp_path: Path, monkeypatch):
+    """curves and zeroshot on one run directory write <run>-figures beside it, nothing into it;
+    a folder of runs keeps <dir>/figures."""
+    from test_variants import gcnt_eval
+
+    run = make_run(tmp_path / "received", "gcnt", 0, [600, 1200], lambda s: s / 100)
+    gcnt_eval(run, {TEST[0]: 5.0})
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    assert main(["curves", str(run)]) == 0
+    assert main(["zeroshot", str(run)]) == 0
+    beside = run.with_name("seed0-figures")
+    assert (beside / "curves.csv").is_file() and (beside / "zeroshot.md").is_file()
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
+    monkeypatch.chdir(run)  # named as "."
+    assert default_out(["."]) == beside
+    assert default_out([tmp_path / "received"]) == tmp_path / "received" / "figures"
+    assert default_out([run, run]) == Path("figures")
 
 
 def test_a_non_finite_return_is_a_gap_with_a_warning_not_a_line_across(tmp_path, capsys):

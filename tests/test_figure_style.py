@@ -190,6 +190,37 @@ def test_curves_figsize_is_the_pdf_page_legend_included(
     assert (width, height) == (pytest.approx(size[0], abs=1e-3), pytest.approx(size[1], abs=1e-3))
 
 
+@pytest.mark.parametrize("metric", ["eval", "train_return/mean"])
+@pytest.mark.filterwarnings("error")  # everything drawn fits the page
+def test_a_column_figure_keeps_most_of_its_height_for_the_axes(tmp_path: Path, metric) -> None:
+    """At ``--figsize 3.4,2.6`` (a paper's column) with three methods and the random phase's
+    line: a one-line y label, and a legend below that leaves the axes over half the page."""
+    from gcnt.analysis.plotting import fit_page
+
+    for method in ("gcnt", "swat", "amorpheus"):
+        for seed in (0, 1, 2):
+            curve_run(tmp_path, method, seed, [600, 1200, 1800], lambda s, a=seed: s / 100 + a)
+    runs = find_runs([tmp_path])
+    style = FigureStyle(figsize=(3.4, 2.6))
+    rows = curves.learning_curves(runs, metric)
+    label = curves.metric_label(runs, metric)
+    fig = curves.curves_figure(
+        rows, metric, ylabel=label, random_until=curves.random_phase(runs), style=style
+    )
+    with style.context():
+        page = fit_page(fig, style.figsize)
+    (ax,) = fig.axes
+    height = ax.get_window_extent().transformed(fig.dpi_scale_trans.inverted()).height
+    assert height / page.height > 0.5, height / page.height
+    head, details = curves.split_label(label)
+    assert ax.get_ylabel() == head and "\n" not in head
+    (legend,) = fig.legends
+    title = " ".join(legend.get_title().get_text().split())
+    assert all(d in title for d in details) and "n = 3 seeds" in title  # nothing said is lost
+    assert [t.get_text() for t in legend.get_texts()][:3] == ["GCNT", "SWAT", "AMORPHEUS"]
+    plt.close(fig)
+
+
 def _rows(method: str, steps, means, stderr, seeds: int, task: str = "Walkerpp") -> list[dict]:
     return [
         {"task": task, "method": method, "env_steps": s, "mean": m, "stderr": e, "seeds": seeds,

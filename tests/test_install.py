@@ -7,12 +7,15 @@ runs the tests (a ``.pth`` line after its own site-packages), so the test needs 
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
 import sys
 import sysconfig
+import tarfile
 import venv
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -24,6 +27,7 @@ from gcnt import provenance as P
 #: what a build of the package reads from the checkout
 SOURCES = (
     "pyproject.toml",
+    "setup.py",
     "README.md",
     "LICENSE",
     "src",
@@ -33,8 +37,9 @@ SOURCES = (
 )
 
 
-def _build_wheel(tmp_path: Path) -> Path:
-    """The wheel of a copy of the checkout (a build writes build/ and *.egg-info beside it)."""
+def _build_wheel(tmp_path: Path, commit: bool = False) -> Path:
+    """The wheel of a copy of the checkout (a build writes build/ and *.egg-info beside it);
+    ``commit``: the copy made a git repository of one commit first."""
     copy = tmp_path / "checkout"
     copy.mkdir()
     for name in SOURCES:
@@ -44,12 +49,64 @@ def _build_wheel(tmp_path: Path) -> Path:
             shutil.copytree(src, copy / name, symlinks=True, ignore=ignore)
         else:
             shutil.copy(src, copy / name)
+    if commit:
+        _git(copy, "init", "-q")
+        _git(copy, "add", "-A")
+        _git(copy, "commit", "-q", "-m", "the copy")
     wheels = tmp_path / "wheels"
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
     build = [*pip, "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-w", str(wheels)]
     subprocess.run([*build, str(copy)], check=True, cwd=tmp_path, capture_output=True)
     (wheel,) = wheels.glob("gcnt-*.whl")
     return wheel
+
+
+def _git(repo: Path, *args: str) -> str:
+    identity = ["-c", "user.name=t", "-c", "user.email=t@example.org", "-c", "commit.gpgsign=false"]
+    return subprocess.run(
+        ["git", *identity, "-C", str(repo), *args], capture_output=True, text=True, check=True
+    ).stdout.strip()
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="no git binary")
+def test_a_wheel_built_from_a_git_checkout_names_its_commit(tmp_path):
+    """The wheel carries the commit it was built from; provenance (and so captions and the W&B
+    config) reads it where the installed package is in no git checkout."""
+    wheel = _build_wheel(tmp_path, commit=True)
+    head = _git(tmp_path / "checkout", "rev-parse", "HEAD")
+    site = tmp_path / "site"  # the wheel unpacked: gcnt as installed, outside any checkout
+    with zipfile.ZipFile(wheel) as z:
+        z.extractall(site)
+    record = json.loads((site / "gcnt" / P.BUILD_FILE).read_text())
+    assert record == {"commit": head, "dirty": False}
+    show = "import json; from gcnt import provenance as P; print(json.dumps(P.collect(['x'])))"
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    done = subprocess.run(
+        [sys.executable, "-c", show], cwd=tmp_path, env=env, capture_output=True, text=True,
+        check=True,
+    )  # fmt: skip
+    session = json.loads(done.stdout)
+    assert (session["git_commit"], session["git_dirty"]) == (head, False), session
+    assert session["git_note"] == "recorded by the build of gcnt"
+    assert P.code_label(session) == head[:7]
+    # an sdist of the checkout with a tracked file changed: its tree carries the record, so a
+    # wheel built from it (no git there) names the commit, dirty
+    copy = tmp_path / "checkout"
+    (copy / "README.md").write_text((copy / "README.md").read_text() + "changed\n")
+    sdist = "import sys; from setuptools import build_meta as b; print(b.build_sdist(sys.argv[1]))"
+    made = subprocess.run(
+        [sys.executable, "-c", sdist, str(tmp_path / "sdist")], cwd=copy, capture_output=True,
+        text=True, check=True,
+    ).stdout.split()[-1]  # fmt: skip
+    with tarfile.open(tmp_path / "sdist" / made) as tar:
+        tar.extractall(tmp_path / "unpacked", filter="data")
+    (tree,) = (tmp_path / "unpacked").iterdir()
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q", "wheel", "--no-deps"]
+    build = [*pip, "--no-build-isolation", "--no-index", "-w", str(tmp_path / "from-sdist")]
+    subprocess.run([*build, str(tree)], check=True, cwd=tmp_path, capture_output=True)
+    (wheel,) = (tmp_path / "from-sdist").glob("gcnt-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        assert json.loads(z.read(f"gcnt/{P.BUILD_FILE}")) == {"commit": head, "dirty": True}
 
 
 def _venv_with(wheel: Path, where: Path) -> Path:

@@ -99,11 +99,13 @@ def test_a_plugin_run_records_its_plugin_and_needs_it_named_wherever_the_file_mo
     sha = _sha256(plugin)
     recipe, run = plugin.parent / "recipe.yaml", tmp_path / "run"
     _gcnt("--plugin", str(plugin), "train", str(recipe), f"run_dir={run}")
-    # the run records the plugin's identity (name, hash of its source); provenance its file
+    # the run records the plugin's identity (name, hash of its source), never its path
     recorded = yaml.safe_load((run / "recipe.yaml").read_text())
     assert recorded["resolved"]["plugins"] == [{"name": "my_methods.py", "sha256": sha}]
+    assert recorded["plugins"] == ["my_methods.py"]
     (session,) = json.loads((run / "provenance.json").read_text())["sessions"]
-    assert [p["file"] for p in session["plugins"]] == [str(plugin)]
+    assert session["plugins"] == [{"name": "my_methods.py", "sha256": sha, "via": "--plugin"}]
+    assert str(plugin.parent) not in (run / "recipe.yaml").read_text()  # (the command: as typed)
     # a fresh process that does not name it: one line naming it, its hash and --plugin
     line = _gcnt_fails("eval", str(run), "--robots", "hopper_4", "--episodes", "1", cwd=tmp_path)
     assert "my_methods.py" in line and sha[:16] in line and "--plugin" in line
@@ -181,6 +183,36 @@ def test_ppo_collector_workers_import_the_plugin(plugin, tmp_path):
     path.write_text(yaml.safe_dump(data))
     assert gcnt(["train", str(path)]) == 0
     assert RunDir(tmp_path / "run").load_checkpoint()["env_steps"] >= 160
+
+
+def test_from_python_a_missing_plugin_is_named_with_the_call_that_loads_it(tmp_path):
+    """``gcnt.load_policy`` on a run of a plugin's method: the error says how to name the plugin
+    from Python as well as on the command line."""
+    import gcnt
+    from gcnt.plugins import PluginError
+    from gcnt.recipes import read_recipe_file
+
+    data = read_recipe_file(QUICKSTART)
+    data.pop("base", None)
+    data["network"] = {**data.get("network", {}), "name": "plugnet_elsewhere"}
+    data["resolved"] = {"plugins": [{"name": "my_methods.py", "sha256": "ab" * 32}]}
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "recipe.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(PluginError) as e:
+        gcnt.load_policy(run)
+    said = str(e.value)
+    assert "my_methods.py" in said and "--plugin" in said and "GCNT_PLUGINS" in said
+    assert "gcnt.plugins.load([PATH_OR_MODULE])" in said
+
+
+def test_a_written_recipe_names_plugin_files_without_their_folder(tmp_path):
+    """recipe.yaml and the W&B config (``Recipe.to_dict``) hold no folder of this machine; the
+    recipe in memory (what worker processes import) keeps the path."""
+    recipe = load_recipe(QUICKSTART)
+    recipe.plugins = [str(tmp_path / "mine" / "my_methods.py"), "my_pkg.methods"]
+    assert recipe.to_dict()["plugins"] == ["my_methods.py", "my_pkg.methods"]
+    assert recipe.plugins[0] == str(tmp_path / "mine" / "my_methods.py")
 
 
 def test_a_recipe_names_plugins_relative_to_itself(plugin, tmp_path, monkeypatch):

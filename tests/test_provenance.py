@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -50,10 +51,13 @@ def test_collect_records_the_commit_and_changes_to_tracked_files(repo: Path) -> 
     s = P.collect(["gcnt", "train", "x.yaml"], repo=repo)
     assert s["git_commit"] == _git(repo, "rev-parse", "HEAD") and s["git_dirty"] is False
     assert s["git_note"] is None and s["gcnt_version"] == gcnt.__version__
-    assert s["command"] == ["gcnt", "train", "x.yaml"] and s["cwd"]
+    assert s["command"] == ["gcnt", "train", "x.yaml"]
     assert set(s["packages"]) == set(P.PACKAGES) and s["packages"]["numpy"]
     assert s["python"] == ".".join(map(str, sys.version_info[:3]))
-    assert s["hostname"] and s["platform"] and s["started"]
+    assert s["platform"] and s["started"]
+    # what is handed on with a run: the host as a hash, no folder of this machine
+    assert s["host"] == P.host_hash() and socket.gethostname() not in s["host"]
+    assert not {"hostname", "cwd", "executable"} & set(s)
     json.dumps(s)  # plain JSON
     (repo / "new.txt").write_text("untracked\n")
     assert P.git_state(repo)["dirty"] is False  # untracked files are not changes
@@ -86,6 +90,37 @@ def test_where_git_cannot_tell_the_commit_is_none_with_the_reason(
     monkeypatch.setenv("PATH", str(tmp_path / "no-bin"))
     state = P.collect(["x"], repo=repo)  # a session is still recorded
     assert state["git_commit"] is None and state["git_note"] == "git is not installed"
+
+
+@needs_git
+def test_an_installed_package_names_the_commit_its_build_recorded(
+    tmp_path: Path, repo: Path, monkeypatch
+) -> None:
+    """A package outside any checkout reads the commit its build wrote (setup.py); a damaged
+    record is unknown with the reason; a checkout's own git state wins over a stray record."""
+    monkeypatch.setattr(P, "GIT_CACHE_S", -1.0)  # every query asks git
+    record = {"commit": "abc1234" + "0" * 33, "dirty": True}
+    installed = tmp_path / "site" / "gcnt"
+    tracked = repo / "src" / "gcnt"
+    for where in (installed, tracked):
+        where.mkdir(parents=True)
+        (where / "__init__.py").write_text("")
+        (where / P.BUILD_FILE).write_text(json.dumps(record))
+    monkeypatch.setattr(gcnt, "__file__", str(installed / "__init__.py"))
+    state = P.git_state()
+    assert (state["commit"], state["dirty"]) == (record["commit"], True)
+    assert state["note"] == "recorded by the build of gcnt"
+    assert P.this_code("tables").endswith("at commit abc1234-dirty")
+    for bad in ("{not json", json.dumps({"commit": "", "dirty": False}), "[]"):
+        (installed / P.BUILD_FILE).write_text(bad)
+        state = P.git_state()
+        assert state["commit"] is None and "not in a git checkout" in state["note"], state
+        assert P.BUILD_FILE in state["note"]
+    _git(repo, "add", "src/gcnt/__init__.py")
+    _git(repo, "commit", "-q", "-m", "package")
+    monkeypatch.setattr(gcnt, "__file__", str(tracked / "__init__.py"))
+    state = P.git_state()
+    assert (state["commit"], state["note"]) == (_git(repo, "rev-parse", "HEAD"), None)
 
 
 def test_the_runs_one_process_starts_together_ask_git_once(monkeypatch) -> None:

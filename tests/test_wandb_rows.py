@@ -77,7 +77,7 @@ def test_an_offline_wandb_run_has_one_row_per_log_step_the_video_and_the_summary
     config = next(r["run"] for r in records if r["type"] == "run")["config"]["update"]
     assert config["robots"] == {"hopper_3": robot_hash(smpenv_robot("hopper_3"))}
     # the plugins this process imported (earlier tests' included), as the run's provenance has them
-    assert config["code"]["plugins"] == plugins.loaded()
+    assert config["code"]["plugins"] == plugins.identities(via=True)
     assert config["collector"]["total_frames"] == 40
     # the recipe's env section as the recipe has it, in every config record (torchrl's package
     # listing would replace it)

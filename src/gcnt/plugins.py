@@ -16,7 +16,7 @@ all of them added together:
   "gcnt.plugins"] my_methods = "my_pkg.methods"``; a function named there is called once).
 
 A run records the identity of each plugin it was trained with (its module or file name and the
-sha256 of its source, :func:`identities`), never to import it again: a run or a sweep received
+sha256 of its source, :func:`identities`; never the path of a file), never to import it again: a run or a sweep received
 from someone else runs no code of theirs. A command that rebuilds a run's networks and needs a
 name no imported code registers stops in one line naming the recorded plugin, its hash and
 ``--plugin`` (:func:`check_recorded`); a named plugin whose source differs from the recorded one
@@ -251,10 +251,18 @@ def loaded() -> list[dict[str, Any]]:
     return [dict(v) for v in _loaded.values()]
 
 
-def identities() -> list[dict[str, Any]]:
+def identities(via: bool = False) -> list[dict[str, Any]]:
     """What a run records of the plugins imported while it trains: each one's ``name`` (module,
-    or file name) and the ``sha256`` of its source. Never imported from the record."""
-    return [{"name": v["name"], "sha256": v["sha256"]} for v in _loaded.values()]
+    or file name) and the ``sha256`` of its source (``via``: also where it was named, as a
+    session's provenance records it). Never a path; never imported from the record."""
+    keys = ("name", "sha256", "via") if via else ("name", "sha256")
+    return [{k: v[k] for k in keys} for v in _loaded.values()]
+
+
+def shared_names(specs: Iterable[str]) -> list[str]:
+    """Plugins as a run's ``recipe.yaml`` lists them (its ``plugins:`` key): module names as
+    they are, files by their name alone (the folder is the author's machine's)."""
+    return [Path(s).name if _is_file(s) else s for s in specs]
 
 
 def recorded_identity(entry: Any) -> dict[str, Any] | None:
@@ -307,7 +315,8 @@ def check_recorded(recorded: Iterable[Any], run: str | Path, needed: Iterable[st
             f"{run} names {', '.join(needed)}, which no code imported here registers; it was "
             f"trained with the plugin {first['name']}{sha}, which this command did not name "
             f"(gcnt never imports a run's plugins): pass it with `gcnt --plugin "
-            f"PATH_OR_MODULE ...` (or {ENV_VAR})"
+            f"PATH_OR_MODULE ...` (or {ENV_VAR}); from Python, call "
+            f"`gcnt.plugins.load([PATH_OR_MODULE])` first"
         )
 
 

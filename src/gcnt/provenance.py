@@ -7,14 +7,17 @@ code is known; a sweep's manifest holds the same list under ``provenance``. Figu
 name the code of the runs they show in a caption (:func:`caption`).
 
 The git state comes from the checkout that holds the imported ``gcnt`` package (never the
-working folder): a package installed from a wheel has no commit (``git_commit`` None), and a
-missing git binary or a git failure never stops a run (None, with the reason in
-``git_note``). ``git_dirty`` counts changes to tracked files only (as ``git describe --dirty``).
+working folder). A package installed from a wheel or sdist built from a git checkout names the
+commit it was built from (``gcnt/_build.json``, written by the build: ``setup.py``; ``git_note``
+says so); one without that file has no commit (``git_commit`` None), and a missing git binary
+or a git failure never stops a run (None, with the reason in ``git_note``). ``git_dirty``
+counts changes to tracked files only (as ``git describe --dirty``).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import importlib.metadata
 import json
 import logging
@@ -59,9 +62,12 @@ def set_command(argv: Sequence[str]) -> None:
 
 def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None) -> dict[str, Any]:
     """This process's session: gcnt version, git state of ``repo`` (default: the checkout
-    holding the gcnt package, if any), Python, package versions, machine, CUDA (when torch is
-    loaded), ``argv`` (default: the command line) with the working folder, and the plugins
-    imported (:mod:`gcnt.plugins`: each one's file)."""
+    holding the gcnt package, if any), Python, package versions, platform, the host (a hash of
+    its name: whether sessions ran on one machine, not which), CUDA (when torch is loaded),
+    ``argv`` (default: the command line), and the plugins imported (:mod:`gcnt.plugins`: each
+    one's name, sha256 and where it was named). A run directory is handed on with this
+    record: no folder of this machine (working folder, Python executable, plugin files) and no
+    host name is in it."""
     git = git_state(repo)
     return {
         "gcnt_version": gcnt.__version__,
@@ -71,14 +77,17 @@ def collect(argv: Sequence[str] | None = None, *, repo: str | Path | None = None
         "python": platform.python_version(),
         "packages": {name: _version(name) for name in PACKAGES},
         "platform": platform.platform(),
-        "hostname": socket.gethostname(),
+        "host": host_hash(),
         "cuda": _cuda(),
         "command": list(argv if argv is not None else (_command or sys.argv)),
-        "executable": sys.executable,
-        "cwd": os.getcwd(),
-        "plugins": plugins.loaded(),
+        "plugins": plugins.identities(via=True),
         "started": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
     }
+
+
+def host_hash(name: str | None = None) -> str:
+    """The first 16 hex digits of the sha256 of a host name (default: this machine's)."""
+    return hashlib.sha256((name or socket.gethostname()).encode()).hexdigest()[:16]
 
 
 #: seconds a query of gcnt's own checkout is reused: the runs one process starts together
@@ -114,18 +123,41 @@ def _git_state(repo: str | Path | None) -> dict[str, Any]:
                     raise
                 tracked = ""
             if not tracked.strip():
-                return _unknown(f"gcnt at {package.parent} is not in a git checkout")
+                return _built("the gcnt package is not in a git checkout")
             repo = package.parent
         commit = _git(repo, "rev-parse", "HEAD").strip()
         changes = _git(repo, "status", "--porcelain", "--untracked-files=no")
     except FileNotFoundError:
-        return _unknown("git is not installed")
+        return _built("git is not installed", repo)
     except subprocess.CalledProcessError as e:
         why = (e.stderr or "").strip().splitlines()
-        return _unknown(f"git failed: {why[-1] if why else f'exit code {e.returncode}'}")
+        return _built(f"git failed: {why[-1] if why else f'exit code {e.returncode}'}", repo)
     except (subprocess.TimeoutExpired, OSError) as e:
-        return _unknown(f"git failed: {e}")
+        return _built(f"git failed: {e}", repo)
     return {"commit": commit, "dirty": bool(changes.strip()), "note": None}
+
+
+#: the file a build of the package (wheel, sdist) writes beside ``gcnt/__init__.py``:
+#: ``{"commit", "dirty"}`` of the checkout it was built from (``setup.py``)
+BUILD_FILE = "_build.json"
+
+
+def _built(why: str, repo: str | Path | None = None) -> dict[str, Any]:
+    """Where git cannot tell the package's commit: the one its build recorded
+    (:data:`BUILD_FILE`), else unknown because ``why``. Only for gcnt's own package (``repo``
+    None), never for a repository asked about."""
+    path = Path(gcnt.__file__).resolve().parent / BUILD_FILE
+    if repo is not None or not path.is_file():
+        return _unknown(why)
+    unreadable = _unknown(f"{why}; gcnt's {BUILD_FILE} names no commit")
+    try:
+        data = read_json(path, 64 * KiB, "the commit a build of gcnt came from", ValueError)
+    except ValueError:
+        return unreadable
+    commit, dirty = (data.get("commit"), data.get("dirty")) if isinstance(data, dict) else (0, 0)
+    if not (isinstance(commit, str) and commit.strip() and isinstance(dirty, bool)):
+        return unreadable
+    return {"commit": commit.strip(), "dirty": dirty, "note": "recorded by the build of gcnt"}
 
 
 def _git(where: str | Path, *args: str) -> str:

@@ -254,8 +254,9 @@ class Recipe:
     #: your own modules (``my_pkg.methods``) or .py files (relative to the recipe file),
     #: imported before a recipe file given to ``gcnt train`` or ``gcnt sweep`` is read: the
     #: methods, benchmarks and algorithms they register can be named here (:mod:`gcnt.plugins`).
-    #: A run records its plugins by identity (``resolved.plugins``) and never imports them; its
-    #: recipe read back lists the plugins of the command reading it
+    #: A run records its plugins by identity (``resolved.plugins``; here, files by their name
+    #: alone) and never imports them; its recipe read back lists the plugins of the command
+    #: reading it
     plugins: list[str] = field(default_factory=list)
     #: run directory (default: runs/<task>/<algo>-<network>/seed<seed>)
     run_dir: str | None = None
@@ -369,6 +370,10 @@ class Recipe:
             elif f.name == "resolved":
                 if value:
                     out[f.name] = dict(value)
+            elif f.name == "plugins":  # written and logged: no folder of this machine
+                from gcnt import plugins
+
+                out[f.name] = plugins.shared_names(value)
             else:
                 out[f.name] = (
                     dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value

@@ -346,7 +346,9 @@ def curves_figure(
     a dotted vertical line where the random exploration phase ends (``random_until``: task ->
     steps). The legend names the interval and each method's number of seeds; each panel's y
     range holds every band. Tasks and methods by their display names; size, fonts and title as
-    ``style`` says."""
+    ``style`` says. On a page of a given size (``style.figsize``: a paper's column) the text is a
+    step smaller, the y axis says what the curve is and the legend below, in as few rows as fit,
+    the rest (:func:`split_label`), with a method's seed count only where they differ."""
     from matplotlib.lines import Line2D
 
     from gcnt.analysis.intervals import stderr_text
@@ -360,6 +362,11 @@ def curves_figure(
     colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
     counts: dict[str, list[tuple[int, int]]] = {m: [] for m in methods}  # (seeds, robots)
     random_line = False
+    # on a page of a given size (a paper's column) the axis says what the curve is, the legend's
+    # title the rest (the interval, how the return was measured)
+    axis_label, details = (ylabel or metric), []
+    if style.figsize is not None:
+        axis_label, details = split_label(axis_label)
     cols = min(4, len(tasks))
     nrows = -(-len(tasks) // cols)
     with style.context():
@@ -413,26 +420,35 @@ def curves_figure(
             limits = padded_limits(drawn)
             if limits is not None:
                 ax.set_ylim(*limits)
-            ax.set_title(style.name(task))
-            ax.set_xlabel("environment steps")
-            label = _fitted(ylabel or metric, style, fig.get_figheight() / nrows, fig)
+            page = style.figsize is not None  # a page's text a step smaller
+            ax.set_title(style.name(task), fontsize="medium" if page else None)
+            ax.set_xlabel("environment steps", fontsize="small" if page else None)
+            label = _fitted(axis_label, style, fig.get_figheight() / nrows, fig)
             ax.set_ylabel(label, fontsize="small")
+            if page:
+                ax.tick_params(labelsize="small")
             ax.grid(alpha=0.3)
             if dodge:  # one step: its tick alone
                 ax.set_xticks(sorted(steps))
         for ax in axes.flat[len(tasks) :]:
             ax.set_visible(False)
         style.suptitle(fig)
-        fig.tight_layout()
+        if style.figsize is None:
+            fig.tight_layout()
+        else:  # on a page every margin counts: laid out again at each size fit_page tries
+            fig.set_layout_engine("tight", pad=0.3)
         # one legend, never over the data: its seed counts per method (per panel where they
         # differ). Beside every panel (the saved figure grows to hold it); on a page of a given
         # size, below the panels, as wide as the page
         handles = [Line2D([], [], color=colours[m], marker="o", markersize=3.5) for m in counts]
         labels = [f"{style.name(m)} ({_counts_text(c)})" for m, c in counts.items()]
+        title = stderr_text([n for c in counts.values() for n, _ in c])
+        if style.figsize is not None and len({x for c in counts.values() for x in c}) == 1:
+            if next(iter(counts.values()))[0][1] == 1:  # one n for all, which the title gives
+                labels = [style.name(m) for m in counts]
         if random_line:
             handles.append(Line2D([], [], color="0.4", linestyle=":", linewidth=1))
             labels.append("end of random actions")
-        title = stderr_text([n for c in counts.values() for n, _ in c])
         common = {"fontsize": "small", "title_fontsize": "small"}
         if style.figsize is None:
             fig.legend(
@@ -440,21 +456,43 @@ def curves_figure(
                 bbox_transform=axes[0, -1].transAxes if nrows == 1 else fig.transFigure,
             )  # fmt: skip
         else:
-            _legend_below(fig, handles, labels, title, common)
+            _legend_below(fig, handles, labels, "; ".join([title, *details]))
     return fig
 
 
-def _legend_below(fig, handles: list, labels: list[str], title: str, common: dict) -> None:
+def split_label(label: str) -> tuple[str, list[str]]:
+    """An axis label as what the curve is and its details: ``"training return (exploring;
+    mean over robots)"`` -> ``("training return", ["exploring; mean over robots"])``; an
+    evaluation's protocol (its second line) is a detail too."""
+    head, *rest = label.split("\n")
+    if head.endswith(")") and " (" in head:
+        head, inner = head[:-1].split(" (", 1)
+        rest.insert(0, inner)
+    return head, [r for r in rest if r.strip()]
+
+
+#: the legend of a figure on a page of a given size: smaller type, no frame, tight spacing
+PAGE_LEGEND = {
+    "fontsize": "x-small", "title_fontsize": "x-small", "frameon": False, "handlelength": 1.2,
+    "columnspacing": 0.8, "handletextpad": 0.4, "borderaxespad": 0.2, "labelspacing": 0.3,
+}  # fmt: skip
+
+
+def _legend_below(fig, handles: list, labels: list[str], title: str) -> None:
     """The figure's legend below its panels in as many columns as fit its width, the title
     wrapped to that width."""
     import textwrap
 
+    from matplotlib.font_manager import FontProperties
+
     width = fig.get_figwidth() * fig.dpi
     renderer = fig.canvas.get_renderer()
-    chars = max(int(width / (0.6 * common_size(fig))), 20)
-    for ncols in range(len(handles), 0, -1):
+    size = FontProperties(size="x-small").get_size_in_points() * fig.dpi / 72
+    chars = max(int(width / (0.55 * size)), 20)
+    for rows in range(1, len(handles) + 1):
+        ncols = -(-len(handles) // rows)  # as few rows as fit, their columns balanced
         legend = fig.legend(
-            handles, labels, title=textwrap.fill(title, chars), **common, ncols=ncols,
+            handles, labels, title=textwrap.fill(title, chars), **PAGE_LEGEND, ncols=ncols,
             loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=fig.transFigure,
         )  # fmt: skip
         if ncols == 1 or legend.get_window_extent(renderer).width <= width:

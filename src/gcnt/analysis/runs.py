@@ -115,7 +115,13 @@ def mean_stderr(values: Sequence[float]) -> tuple[float, float]:
 
 
 def default_out(paths: Sequence[str | Path]) -> Path:
-    """Where figures go by default: ``<dir>/figures`` for one directory given, else ``figures``."""
+    """Where figures go by default: for one run directory given, ``<run>-figures`` beside it (a
+    run received from someone is read, never written into); for one other directory (a
+    sweep's), ``<dir>/figures``; else ``figures``."""
+    if len(paths) == 1 and (Path(paths[0]) / RECIPE_FILE).is_file():
+        run = Path(paths[0])
+        run = run.resolve() if run.name in ("", ".", "..") else run
+        return run.with_name(f"{run.name}-figures") if run.name else Path("figures")
     if len(paths) == 1 and Path(paths[0]).is_dir():
         out = Path(paths[0]) / "figures"
         if out.is_symlink() or (

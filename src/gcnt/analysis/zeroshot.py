@@ -143,6 +143,19 @@ def zero_shot_table(
     return out
 
 
+def shown_runs(table: dict[str, Any], runs: Sequence[Run]) -> list[Run]:
+    """The runs of ``runs`` whose evaluations give a cell of ``table`` (what its caption
+    counts): a run without a test robot's evaluation is left out of the table, and of that."""
+    folders = {
+        Path(source).parent
+        for t in table.values()
+        for row in t["cells"].values()
+        for cell in row.values()
+        for source in cell["sources"]
+    }
+    return [r for r in runs if r.path / "eval" in folders]
+
+
 def _fmt(cell: dict[str, Any] | None, bold: bool, pm: str = "±", mark: str = "**{}**") -> str:
     if cell is None:
         return "–"

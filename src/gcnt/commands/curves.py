@@ -10,7 +10,8 @@ training return; a dotted line marks the end of TD3's random-action phase. Per-r
 recipe's ``label`` names its line. Several directories go into the same figure (e.g. a world's
 universal sweep and its SR sweep). Writes ``curves.png`` (``--format pdf,svg``: those files;
 size, fonts, title and display names as the figure options say) and ``curves.csv`` (to
-``--out``, default ``<DIR>/figures``), and ``curves.caption.txt``: the gcnt versions and commits
+``--out``, default ``<DIR>/figures``, or beside a run directory given alone: ``<RUN>-figures``),
+and ``curves.caption.txt``: the gcnt versions and commits
 the runs come from (their ``provenance.json``).
 """
 
@@ -37,7 +38,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="an even grid of N steps per curve (default: the logged steps)",
     )
     p.add_argument("--smooth", type=int, default=1, help="moving average over N log rows (off)")
-    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <DIR>/figures; a run directory's beside it, <RUN>-figures)",
+    )
     p.add_argument("--name", default="curves", help="file name stem (default: curves)")
     p.add_argument(
         "--per-seed",

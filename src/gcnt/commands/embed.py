@@ -28,7 +28,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robots", nargs="+", default=["CWHH++:all"], help="robots (CWHH++:all)")
     p.add_argument("--all-seeds", action="store_true", help="a panel per run, not per method")
     p.add_argument("--seed", type=int, default=0, help="t-SNE (and untrained init) seed")
-    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <DIR>/figures; a run directory's beside it, <RUN>-figures)",
+    )
     p.add_argument("--name", default="embed", help="file name stem (default: embed)")
     add_figure_options(p)
 

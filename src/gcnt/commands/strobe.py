@@ -32,7 +32,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--all-seeds", action="store_true", help="a row per run, not per method")
     p.add_argument("--seed", type=int, default=0, help="env seed")
-    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <DIR>/figures; a run directory's beside it, <RUN>-figures)",
+    )
     p.add_argument("--name", help="file name stem (default: strobe-<robot>-<task>)")
     add_figure_options(p)
 

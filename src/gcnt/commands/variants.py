@@ -52,7 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.95,
         help="bootstrap interval level (0.95; with 5 or more seeds per task)",
     )
-    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <DIR>/figures; a run directory's beside it, <RUN>-figures)",
+    )
     p.add_argument("--name", default="variants", help="file name stem (default: variants)")
     add_figure_options(p)
 

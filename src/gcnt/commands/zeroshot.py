@@ -5,8 +5,8 @@ mean in bold where its interval lies above the runner-up's; each table says whic
 robot) its numbers come from. Reads the runs' evaluations (``eval/*.json``); ``--evaluate`` first
 runs ``gcnt eval RUN --robots test`` (the recipe's protocol; ``--episodes N``) on every run that
 has none. Writes ``zeroshot.md``, ``zeroshot.tex`` (methods by display name: ``--names``),
-``zeroshot.json`` and ``zeroshot.caption.txt``: the gcnt versions and commits of the runs (also
-the last line of the Markdown and a comment of the LaTeX).
+``zeroshot.json`` and ``zeroshot.caption.txt``: the gcnt versions and commits of the runs the
+table shows (also the last line of the Markdown and a comment of the LaTeX).
 """
 
 from __future__ import annotations
@@ -37,7 +37,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --evaluate: episodes per robot (default: 100 deterministic, 32 stochastic, "
         "as the recipe's eval.deterministic)",
     )
-    p.add_argument("--out", type=Path, help="output folder (default: <DIR>/figures)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <DIR>/figures; a run directory's beside it, <RUN>-figures)",
+    )
     add_names_option(p)
 
 
@@ -74,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from gcnt import provenance
     from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import default_out, find_runs
-    from gcnt.analysis.zeroshot import to_markdown, write, zero_shot_table
+    from gcnt.analysis.zeroshot import shown_runs, to_markdown, write, zero_shot_table
 
     runs = find_runs(args.paths)
     check_names(args, run_keys(runs))
@@ -84,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     table = zero_shot_table(runs, args.robots, args.label)
     out = args.out or default_out(args.paths)
     style = table_style(args)
-    caption = provenance.caption(r.path for r in runs)
+    caption = provenance.caption(r.path for r in shown_runs(table, runs))  # the runs it shows
     written = write(table, out, style=style, caption=caption)
     print(to_markdown(table, style))
     print(caption)

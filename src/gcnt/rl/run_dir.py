@@ -589,8 +589,8 @@ def wandb_id(run: RunDir, name: str) -> str:
 
 
 def _code(run: RunDir) -> dict[str, Any]:
-    """gcnt version, commit, uncommitted changes and plugin files of the run's latest session
-    (empty where the run has no readable provenance)."""
+    """gcnt version, commit, uncommitted changes and plugins (name, sha256) of the run's latest
+    session (empty where the run has no readable provenance)."""
     try:
         sessions = provenance.read_sessions(run.path)
     except provenance.ProvenanceError:
