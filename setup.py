@@ -1,7 +1,7 @@
 """The build of gcnt records the git commit it was built from (all else is in pyproject.toml).
 
 A wheel or sdist built from a git checkout carries ``gcnt/_build.json``: ``{"commit", "dirty"}``
-(HEAD, and whether tracked files had uncommitted changes), which :mod:`gcnt.provenance` reads
+(HEAD, and whether tracked files had uncommitted changes), which :mod:`gcnt.run.provenance` reads
 where the installed package is not in a git checkout. An sdist carries the file in its source
 tree, so that a wheel built from it keeps the commit. Built without git (or from a folder git
 does not track), nothing is written and a run's commit stays unknown.

@@ -167,7 +167,7 @@ def test_zero_shot_prefers_more_episodes_then_says_what_is_missing(tmp_path: Pat
 
 def _with_provenance(sweep: Path) -> str:
     """The caption of the sweep's runs, one of which records the code it ran (commit abc1234)."""
-    from gcnt import provenance
+    from gcnt.run import provenance
 
     runs = find_runs([sweep])
     session = {"gcnt_version": "0.1.0", "git_commit": "abc1234" + "0" * 33, "git_dirty": False}
@@ -195,7 +195,7 @@ def test_the_zeroshot_caption_counts_the_runs_its_table_shows(tmp_path: Path, ca
     from test_variants import gcnt_eval
     from test_variants import make_run as variant_run
 
-    from gcnt import provenance
+    from gcnt.run import provenance
 
     shown = variant_run(tmp_path, "gcnt", 0)
     gcnt_eval(shown, {TEST[0]: 5.0})

@@ -21,7 +21,7 @@ from cli_helpers import error_line, tiny_td3_recipe
 
 from gcnt.cli import main as gcnt
 from gcnt.morphology import morphologies_dir
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).parents[1]
 DATA = Path(__file__).parent / "data" / "bad_robots"

@@ -13,7 +13,7 @@ from cli_helpers import error_line, tiny_td3_recipe
 
 from gcnt.cli import COMMANDS, build_parser
 from gcnt.cli import main as gcnt
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).parents[1]
 QUICKSTARTS = (

@@ -27,7 +27,7 @@ from gcnt.cli import main
 from gcnt.recipes import load_recipe
 from gcnt.rl.evaluate import summarize, write_eval
 from gcnt.rl.init_from import own_task
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 TRAIN = ["walker_2_main", "walker_4_main"]
 TEST = ["walker_3_main"]

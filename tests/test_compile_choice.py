@@ -107,7 +107,7 @@ def test_auto_left_unresolved_is_eager():
 def test_a_recorded_run_keeps_its_compile_reading(tmp_path):
     """A run recorded before ``auto`` (no ``compile.compile`` key) reads eager, as it ran; one
     recorded with a bool keeps it."""
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     source = ROOT / "tests/data/td3_run_b52e8ec"
     data = yaml.safe_load((source / "recipe.yaml").read_text())
@@ -164,7 +164,7 @@ def test_a_run_records_what_it_chose(trained):
     """A run keeps ``auto`` in its recipe and records the resolved choices: a tiny run stays
     eager; its products' precision is the probe's."""
     from gcnt.rl.accelerate import choose_matmul_precision
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     recipe = RunDir(trained).load_recipe()
     assert recipe.compile.compile == "auto" and recipe.compile.matmul_precision == "auto"

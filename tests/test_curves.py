@@ -20,7 +20,7 @@ from gcnt.analysis import curves
 from gcnt.analysis.runs import default_out, find_runs
 from gcnt.cli import main
 from gcnt.rl.evaluate import summarize, write_eval
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 TRAIN = ["walker_2_main", "walker_4_main"]
 TEST = ["walker_3_main"]

@@ -12,8 +12,8 @@ from torch.utils._pytree import tree_leaves
 
 from gcnt.rl.device import OnDevice, on_device
 from gcnt.rl.loop import _all_finite
-from gcnt.rl.run_dir import RunDir, plain_state
 from gcnt.rl.td3.tensor_chain import RobotBatch
+from gcnt.run.directory import RunDir, plain_state
 
 
 def test_divergence_check_groups_tensors_by_device():

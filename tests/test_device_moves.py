@@ -19,7 +19,7 @@ from gcnt.cli import main as gcnt
 from gcnt.keys import ACTION
 from gcnt.rl.device import load_optimizer_state
 from gcnt.rl.td3.exploration import GaussianExploration
-from gcnt.run_record import load_run_recipe
+from gcnt.run.record import load_run_recipe
 
 
 def _adam_state(**flags) -> dict:

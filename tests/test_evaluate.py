@@ -49,7 +49,7 @@ def test_metrics_are_strict_json_and_read_back_as_nan(tmp_path):
     import math
 
     from gcnt.analysis.runs import Run
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     run = RunDir(tmp_path)
     run.log_metrics({"env_steps": 10, "loss_actor": float("nan"), "x": float("inf"), "y": 1.5})
@@ -72,7 +72,7 @@ def test_what_training_wrote_after_the_checkpoint_is_set_aside_on_resume(tmp_pat
     already there), where the analyses do not read them; others stay; a superseded/ that is a
     link is refused and nothing moves."""
     from gcnt.analysis.runs import Run
-    from gcnt.rl.run_dir import RunDir, RunDirError
+    from gcnt.run.directory import RunDir, RunDirError
 
     run = RunDir(tmp_path / "run")
     (run.path / "eval" / "superseded").mkdir(parents=True)
@@ -108,7 +108,7 @@ def stochastic_run(tmp_path):
     import torch
 
     from gcnt.recipes import load_recipe
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     recipe = load_recipe("recipes/quickstart.yaml", ["eval.deterministic=false"])
     run = RunDir(tmp_path / "run")

@@ -58,11 +58,11 @@ def test_every_registered_method_and_shipped_task_has_a_display_name() -> None:
 
 
 def test_a_task_spelt_as_a_folder_is_shown_as_the_task() -> None:
-    from gcnt.rl.run_dir import _slug
+    from gcnt.run.directory import folder_name
     from gcnt.sweep.status import slug
 
     for task in TASKS:
-        assert display_name(_slug(task)) == task  # runs/Walkerpp/...
+        assert display_name(folder_name(task)) == task  # runs/Walkerpp/...
         assert display_name(slug(task)) == task  # sweeps/walkerpp
     assert display_name("ppo:metamorph_star") == "MetaMorph* (PPO)"
     assert display_name("gcnt [td3.lr=0.001]") == "GCNT [td3.lr=0.001]"

@@ -20,7 +20,7 @@ from source_scan import mode as mode_of
 from gcnt.data_folders import MORPHOLOGIES_ENV
 from gcnt.files import MAX_DEPTH, MiB, read_json, read_regular, read_yaml
 from gcnt.morphology.catalogues import refresh_catalogues
-from gcnt.provenance import PROVENANCE_FILE, add_session
+from gcnt.run.provenance import PROVENANCE_FILE, add_session
 
 #: reads outside gcnt.files that are allowed, and why: (module, function, call)
 ALLOWED = {
@@ -31,7 +31,7 @@ ALLOWED = {
     ("recipes.py", "recipe_from_dict", "yaml.safe_load"),
     ("recipes.py", "recorded_recipe", "yaml.safe_load"),
     # a handle from open_regular, or an archive member of an import (capped by its header)
-    ("rl/run_dir.py", "load_checkpoint", "torch.load"),
+    ("run/directory.py", "load_checkpoint", "torch.load"),
     ("rl/td3/replay.py", "load", "torch.load"),
     ("morphology/unimal/imported.py", "_read_member", "open"),
 }
@@ -94,7 +94,7 @@ def test_a_small_file_is_read_without_reserving_the_cap(tmp_path):
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
     code = (
-        "import sys; from gcnt.rl.metrics_log import read_metrics; "
+        "import sys; from gcnt.run.metrics import read_metrics; "
         "print(len(read_metrics(sys.argv[1])))"
     )
     out = subprocess.run(

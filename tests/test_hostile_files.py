@@ -13,8 +13,8 @@ from cli_helpers import error_line
 
 from gcnt.files import MiB, read_regular
 from gcnt.morphology.robot import RobotFileError, load_robot
-from gcnt.rl.metrics_log import MetricsFileError, read_metrics
-from gcnt.rl.run_dir import CheckpointError, RunDir
+from gcnt.run.directory import CheckpointError, RunDir
+from gcnt.run.metrics import MetricsFileError, read_metrics
 
 
 def _fifo(path):

@@ -12,7 +12,7 @@ import pytest
 import yaml
 from cli_helpers import error_line
 
-from gcnt.rl.run_dir import WRITTEN
+from gcnt.run.directory import WRITTEN
 
 
 def _copy(trained: Path, tmp_path: Path, name: str = "run") -> Path:

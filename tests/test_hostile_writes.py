@@ -277,7 +277,7 @@ def test_a_start_refused_by_a_racing_one_leaves_the_winner_directory(
 
         def prepare_while_another_starts(*args, **kwargs):
             # while this start builds its networks, another claims the directory
-            stack.enter_context(holding("gcnt.rl.run_lock:run_lock", run))
+            stack.enter_context(holding("gcnt.run.lock:run_lock", run))
             return real_prepare(*args, **kwargs)
 
         monkeypatch.setattr(loop, "prepare", prepare_while_another_starts)

@@ -19,7 +19,7 @@ from gcnt.cli import main as gcnt
 from gcnt.recipes import load_recipe
 from gcnt.rl.factories import network_weights
 from gcnt.rl.loop import prepare
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).parents[1]
 

@@ -22,7 +22,7 @@ import pytest
 from cli_helpers import ROOT, TINY_SWEEP_OVERRIDES
 
 import gcnt
-from gcnt import provenance as P
+from gcnt.run import provenance as P
 
 #: what a build of the package reads from the checkout
 SOURCES = (
@@ -79,7 +79,7 @@ def test_a_wheel_built_from_a_git_checkout_names_its_commit(tmp_path):
         z.extractall(site)
     record = json.loads((site / "gcnt" / P.BUILD_FILE).read_text())
     assert record == {"commit": head, "dirty": False}
-    show = "import json; from gcnt import provenance as P; print(json.dumps(P.collect(['x'])))"
+    show = "import json; from gcnt.run import provenance as P; print(json.dumps(P.collect(['x'])))"
     env = {**os.environ, "PYTHONPATH": str(site)}
     done = subprocess.run(
         [sys.executable, "-c", show], cwd=tmp_path, env=env, capture_output=True, text=True,

@@ -21,7 +21,7 @@ from plugin_helpers import write_plugin
 
 from gcnt.cli import main as gcnt
 from gcnt.recipes import load_recipe
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICKSTART = ROOT / "recipes" / "quickstart.yaml"

@@ -21,7 +21,7 @@ from gcnt.recipes import load_recipe, recipe_from_dict
 from gcnt.rl.loop import prepare
 from gcnt.rl.ppo.config import PPOConfig
 from gcnt.rl.ppo.learner import PPO, NormalizedPolicy, lr_factor, make_gae
-from gcnt.rl.run_dir import RunDir, plain_state
+from gcnt.run.directory import RunDir, plain_state
 
 OBS_KEY = ("limbs", "obs")
 TINY_NET = {"d_model": 16, "layers": 1, "ff": 16, "heads": 2}
@@ -385,7 +385,7 @@ def test_the_python_api_shows_progress_and_keeps_torchrl_info_out(tmp_path):
         "import gcnt\n"
         "from test_ppo import tiny_recipe\n"
         "from gcnt.rl.loop import train\n"
-        "from gcnt.rl.run_dir import RunDir\n"
+        "from gcnt.run.directory import RunDir\n"
         f"recipe = tiny_recipe({str(tmp_path / 'run')!r})\n"
         "run = RunDir(recipe.run_dir)\n"
         "run.create(recipe)\n"

@@ -17,8 +17,8 @@ from cli_helpers import wait_for_metrics
 from test_ppo import tiny_recipe
 
 from gcnt.cli import main as gcnt
-from gcnt.rl.run_dir import RunDir
 from gcnt.rl.stop import EXIT_STOPPED
+from gcnt.run.directory import RunDir
 
 
 def _endless_run(tmp_path: Path, benchmark: str = "smpenv") -> tuple[subprocess.Popen, Path]:

@@ -1,4 +1,4 @@
-"""Provenance: ``gcnt.provenance.collect`` on a git repository (and where git cannot tell), the
+"""Provenance: ``gcnt.run.provenance.collect`` on a git repository (and where git cannot tell), the
 ``provenance.json`` of a tiny real run and the session each resume adds, the W&B run a resumed
 (and moved) run continues with its tags, the sweep manifest's sessions, the W&B group and tags
 of a sweep run and its log's one "done" line, and the captions of ``gcnt curves`` and ``gcnt
@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 
 import gcnt
-from gcnt import provenance as P
 from gcnt import sweep as S
 from gcnt.cli import main
-from gcnt.rl.run_dir import RunDir
+from gcnt.run import provenance as P
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICKSTART = ROOT / "recipes" / "quickstart.yaml"

@@ -15,9 +15,9 @@ from gcnt.bench.td3 import ensemble_store, make_ensemble
 from gcnt.recipes import load_recipe
 from gcnt.rl.factories import make_env, train_robots
 from gcnt.rl.loop import train
-from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3 import replay as rb
 from gcnt.rl.td3.learner import TD3Learner
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).parents[1]
 QUICK = ROOT / "recipes/quickstart.yaml"

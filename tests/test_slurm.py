@@ -24,8 +24,8 @@ from gcnt import sweep as S
 from gcnt.analysis.runs import Run
 from gcnt.cli import main
 from gcnt.files import write_text
-from gcnt.rl.run_dir import RunDir
-from gcnt.rl.run_lock import holder
+from gcnt.run.directory import RunDir
+from gcnt.run.lock import holder
 
 pytestmark = [pytest.mark.slurm, pytest.mark.slow]
 

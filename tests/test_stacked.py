@@ -243,7 +243,7 @@ def test_a_refused_start_of_seeds_leaves_no_directory(tmp_path, capsys):
     """A seed whose directory is trained by another process, or already holds a run: refused in
     one line, and the other seeds' directories are not left behind holding only a lock."""
     busy = tmp_path / "seed1"
-    with holding("gcnt.rl.run_lock:run_lock", busy):
+    with holding("gcnt.run.lock:run_lock", busy):
         assert gcnt(["train", str(QUICK), *TINY, f"run_dir={tmp_path}", "--seeds", "0,1"]) == 2
         assert "is being trained by" in capsys.readouterr().err
         assert sorted(p.name for p in tmp_path.iterdir()) == ["seed1"]

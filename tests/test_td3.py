@@ -14,8 +14,8 @@ from gcnt.morphology import morphologies_dir
 from gcnt.recipes import load_recipe
 from gcnt.rl.factories import train_robots
 from gcnt.rl.loop import train
-from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3.loss import masked_mean, td_target
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).parents[1]
 RECIPES = sorted(

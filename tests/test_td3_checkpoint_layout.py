@@ -13,8 +13,8 @@ import torch
 
 from gcnt.cli import main as gcnt
 from gcnt.rl.factories import make_env, train_robots
-from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3.learner import TD3Learner
+from gcnt.run.directory import RunDir
 
 FIXTURE = Path(__file__).parent / "data" / "td3_run_b52e8ec"
 

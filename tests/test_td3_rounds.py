@@ -12,9 +12,9 @@ from tensordict import TensorDict
 from gcnt.keys import MORPH_ID
 from gcnt.recipes import load_recipe
 from gcnt.rl.loop import follow_algorithm, prepare, train
-from gcnt.rl.run_dir import RunDir
 from gcnt.rl.td3.config import TD3Config
 from gcnt.rl.td3.learner import UpdateSchedule
+from gcnt.run.directory import RunDir
 
 ROOT = Path(__file__).parents[1]
 

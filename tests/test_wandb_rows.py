@@ -16,8 +16,8 @@ import pytest
 from gcnt import plugins
 from gcnt.cli import main
 from gcnt.morphology import smpenv_robot
-from gcnt.rl.run_dir import RunDir, robot_hash
-from gcnt.rl.run_logger import FINAL_EVAL
+from gcnt.rl.run_logger import FINAL_EVAL, robot_hash
+from gcnt.run.directory import RunDir
 
 
 def _records(run: Path) -> list[dict]:

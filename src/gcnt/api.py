@@ -34,7 +34,7 @@ class LoadedRun:
     recipe: dict[str, Any]
     #: the rows of ``metrics.jsonl`` (one per log step)
     metrics: list[dict[str, Any]]
-    #: the evaluation files under ``eval/`` (:class:`gcnt.run_data.EvalRecord`)
+    #: the evaluation files under ``eval/`` (:class:`gcnt.run.data.EvalRecord`)
     evaluations: list[Any]
 
     @property
@@ -46,9 +46,9 @@ class LoadedRun:
 
     @property
     def record(self) -> Any:
-        """The run's record (:class:`gcnt.resolved_run.RunRecord`); None for a run written
+        """The run's record (:class:`gcnt.run.resolved.RunRecord`); None for a run written
         before the record."""
-        from gcnt.resolved_run import RunRecord
+        from gcnt.run.resolved import RunRecord
 
         resolved = self.recipe.get("resolved")
         return RunRecord.from_resolved(resolved) if isinstance(resolved, dict) else None
@@ -56,7 +56,7 @@ class LoadedRun:
 
 def load_run(run: str | Path) -> LoadedRun:
     """The record of the run directory ``run``, its metrics and its evaluations."""
-    from gcnt.run_data import RECIPE_FILE, AnalysisError, Run
+    from gcnt.run.data import RECIPE_FILE, AnalysisError, Run
 
     path = Path(run)
     if not (path / RECIPE_FILE).is_file():
@@ -67,7 +67,7 @@ def load_run(run: str | Path) -> LoadedRun:
 
 def _recipe_and_robots(run: str | Path, robots: Sequence[str] | None, device: str):
     from gcnt.rl.evaluate import _pad, eval_robots
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     recipe = RunDir(run).load_recipe([f"device={device}"], anywhere=True)
     chosen = eval_robots(list(robots) if robots is not None else recipe.env.robots, recipe)
@@ -121,7 +121,7 @@ def load_policy(
     by :func:`make_env` for the same robots."""
     from gcnt.rl.evaluate import acting_policy
     from gcnt.rl.factories import make_env as build
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     if checkpoint != "last":
         raise ValueError(f"checkpoint: a run keeps its last checkpoint only; got {checkpoint!r}")

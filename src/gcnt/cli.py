@@ -23,7 +23,8 @@ import os
 import sys
 
 import gcnt
-from gcnt import plugins, provenance
+from gcnt import plugins
+from gcnt.run import provenance
 from gcnt.suggest import did_you_mean
 
 #: sub-command name -> (module, one-line help)
@@ -74,7 +75,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
             ("UnknownRobotError", "BenchmarkFileError", "DuplicateRobotError"),
         ),
         ("gcnt.envs.robot_table", ("RobotTooLargeError",)),
-        ("gcnt.rl.run_dir", ("CheckpointError", "RunDirError")),
+        ("gcnt.run.directory", ("CheckpointError", "RunDirError")),
         ("gcnt.rl.loop", ("TrainingDivergedError", "WorkerDiedError")),
         ("gcnt.rl.evaluate", ("PolicyMismatchError",)),
         ("gcnt.analysis.runs", ("AnalysisError",)),

@@ -768,7 +768,7 @@ def recorded_recipe(
     recorded: dict[str, Any], path: str | Path, overrides: list[str] | None, anywhere: bool
 ) -> Recipe:
     """The recipe a run recorded (``recorded``, read from ``path``) with ``overrides``, to go on
-    with on this machine (:func:`gcnt.run_record.load_run_recipe`: the device and CUDA-only
+    with on this machine (:func:`gcnt.run.record.load_run_recipe`: the device and CUDA-only
     switches as it describes)."""
     data = _as_recorded(recorded)
     overrides = list(overrides or [])

@@ -9,7 +9,7 @@ A run directory, as ``gcnt train`` writes it::
     eval/*.json            evaluations: {"env_steps": N, "robots": {name: {"mean", ...}}, ...}
 
 The run-reading core (:class:`Run`, :class:`EvalRecord`, what makes runs seeds of one
-experiment) is :mod:`gcnt.run_data`, below :mod:`gcnt.rl` and this package; this module adds
+experiment) is :mod:`gcnt.run.data`, below :mod:`gcnt.rl` and this package; this module adds
 finding runs and ordering and naming methods.
 """
 
@@ -19,7 +19,7 @@ import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from gcnt.run_data import (  # noqa: F401 (the analysis modules read them from here)
+from gcnt.run.data import (  # noqa: F401 (the analysis modules read them from here)
     CHECKPOINT,
     METRICS_FILE,
     NOT_THE_EXPERIMENT,

@@ -25,10 +25,10 @@ DEFAULT_ROBOT = "humanoid_2d_9_full"
 
 def _policy_and_env(run: Run, robot: str, seed: int):
     """The run's trained deterministic policy and a one-robot env for ``robot``."""
-    from gcnt.resolved_run import resolve_run
     from gcnt.rl.algorithm import get_algorithm
     from gcnt.rl.factories import make_env
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
+    from gcnt.run.resolved import resolve_run
 
     recipe = RunDir(run.path).load_recipe(anywhere=True)
     policy_state = run.policy_state()

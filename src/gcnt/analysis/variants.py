@@ -414,7 +414,7 @@ def to_markdown(
 
 def write_json(summary: dict[str, Any], path: Path) -> Path:
     """The summary as strict JSON (no interval: ``null``)."""
-    from gcnt.rl.run_dir import strict_json
+    from gcnt.run.directory import strict_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text(path, json.dumps(strict_json(summary), indent=1, allow_nan=False))

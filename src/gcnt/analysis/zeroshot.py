@@ -251,8 +251,8 @@ def write(
 ) -> tuple[Path, Path, Path]:
     """``<stem>.md``, ``<stem>.tex`` and ``<stem>.json`` (strict JSON: a missing standard error
     is ``null``; methods by their ids). ``caption`` (the code of the runs,
-    :func:`gcnt.provenance.caption`) ends the Markdown and the LaTeX (as a comment)."""
-    from gcnt.rl.run_dir import strict_json
+    :func:`gcnt.run.provenance.caption`) ends the Markdown and the LaTeX (as a comment)."""
+    from gcnt.run.directory import strict_json
 
     out.mkdir(parents=True, exist_ok=True)
     md, tex, js = out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.json"

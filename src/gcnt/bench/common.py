@@ -284,7 +284,7 @@ def train_quietly(recipe, log_interval: int) -> list[dict]:
     """Train ``recipe`` in a temporary run directory (no logger backend, progress bar,
     checkpoints or evaluation; a metrics row every ``log_interval`` steps); its metrics rows."""
     from gcnt.rl.loop import train
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     with tempfile.TemporaryDirectory() as tmp:
         recipe.run_dir = tmp

@@ -30,7 +30,7 @@ def learning_check(recipe_path: str, overrides: list[str], seed: int) -> dict:
 
     from gcnt.recipes import load_recipe
     from gcnt.rl.loop import train
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     with tempfile.TemporaryDirectory() as tmp:
         recipe = load_recipe(recipe_path, [*overrides, f"seed={seed}", f"run_dir={tmp}"])

@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _caption(runs: list, path: Path) -> None:
     """Print and write the code the runs come from (gcnt versions and commits)."""
-    from gcnt import provenance
+    from gcnt.run import provenance
 
     text = provenance.caption(r.path for r in runs)
     print(f"{text}\nwritten: {provenance.write_caption(text, path)}")

@@ -123,7 +123,7 @@ def _run_recipe(path: Path):
     """The recipe of the run directory ``path``, read without loading torch, so that mistakes in
     what to evaluate are reported before anything heavy is loaded."""
     from gcnt.analysis.runs import RECIPE_FILE
-    from gcnt.run_record import load_run_recipe
+    from gcnt.run.record import load_run_recipe
 
     if not (path / RECIPE_FILE).exists():
         raise FileNotFoundError(f"{path}: no {RECIPE_FILE}; is this a gcnt run directory?")
@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         raise RecipeError(
             f"{path}: no robots to evaluate (the recipe has no test robots; pass --robots ...)"
         )
-    from gcnt.run_record import use_stored_robots
+    from gcnt.run.record import use_stored_robots
 
     use_stored_robots(recipe, path)  # the run's own robots where not registered here
     if args.json:  # a folder or a socket there: refused before the evaluation
@@ -175,9 +175,9 @@ def run(args: argparse.Namespace) -> int:
     )
     if not robots:
         raise RecipeError(f"{path}: no robots to evaluate ({', '.join(specs)} name none)")
-    from gcnt.resolved_run import check_benchmark, resolve_run
     from gcnt.rl.evaluate import PolicyMismatchError, evaluate, format_table, write_eval
-    from gcnt.rl.run_dir import CheckpointError, RunDir, RunDirError
+    from gcnt.run.directory import CheckpointError, RunDir, RunDirError
+    from gcnt.run.resolved import check_benchmark, resolve_run
 
     run_dir = RunDir(path)
     resolve_run(recipe, lookups=lookups)  # the network, benchmark and robots the run names

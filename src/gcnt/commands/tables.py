@@ -25,9 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt import provenance
     from gcnt.analysis.tables import parameter_tables
     from gcnt.nn.registry import NETWORKS
+    from gcnt.run import provenance
 
     presets = tuple(s.strip() for s in args.presets.split(",") if s.strip())
     check_names(args, NETWORKS)  # the tables' rows: every registered method

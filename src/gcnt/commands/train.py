@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError
-    from gcnt.rl.run_dir import RunDir
+    from gcnt.run.directory import RunDir
 
     if args.init_from is not None:
         if args.resume:
@@ -80,8 +80,8 @@ def _run(args: argparse.Namespace) -> int:
 def _train_one(args: argparse.Namespace, made: list) -> int:
     from gcnt.recipes import RecipeError, load_recipe
     from gcnt.rl.init_from import own_task
-    from gcnt.rl.run_dir import RunDir
-    from gcnt.rl.run_lock import run_lock
+    from gcnt.run.directory import RunDir
+    from gcnt.run.lock import run_lock
 
     with contextlib.ExitStack() as held:  # the run directory's lock, held until the end
         if args.resume:

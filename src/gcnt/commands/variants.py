@@ -62,10 +62,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt import provenance
     from gcnt.analysis import variants as V
     from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import AnalysisError, default_out, find_runs
+    from gcnt.run import provenance
 
     stats = ("mean", "iqm") if args.iqm else ("mean",)
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]

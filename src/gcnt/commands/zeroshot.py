@@ -75,10 +75,10 @@ def _evaluate(runs, episodes: int | None, force: bool) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcnt import provenance
     from gcnt.analysis.names import run_keys
     from gcnt.analysis.runs import default_out, find_runs
     from gcnt.analysis.zeroshot import shown_runs, to_markdown, write, zero_shot_table
+    from gcnt.run import provenance
 
     runs = find_runs(args.paths)
     check_names(args, run_keys(runs))

@@ -347,7 +347,7 @@ def _load(catalogue: str, name: str) -> Robot:
 
 
 #: robot spec -> its robots as (name, stored file, family, catalogue): a run's own copies of
-#: robots not registered here (:func:`gcnt.run_record.use_stored_robots`), resolved first
+#: robots not registered here (:func:`gcnt.run.record.use_stored_robots`), resolved first
 _PINNED: dict[str, tuple[tuple[str, Path, str | None, str | None], ...]] = {}
 
 
@@ -753,7 +753,7 @@ def resolve_robots(
     list of a run; a robot of ``specs`` that is not among them is named apart from them.
 
     ``lookups``: what this command looked up already, spec by spec (a run's record,
-    :func:`gcnt.resolved_run.resolve_run`): a spec given there is not looked up again, and the
+    :func:`gcnt.run.resolved.resolve_run`): a spec given there is not looked up again, and the
     specs looked up here are added (one lookup of each spec per command).
     """
     if isinstance(specs, str):

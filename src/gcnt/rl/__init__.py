@@ -4,7 +4,7 @@
 * :mod:`~gcnt.rl.algorithm`: the algorithm seam, what an algorithm gives the run loop
 * :mod:`~gcnt.rl.td3`, :mod:`~gcnt.rl.ppo`: the two algorithms
 * :mod:`~gcnt.rl.factories`: ``make_env`` / ``make_net`` from a recipe
-* :mod:`~gcnt.rl.run_dir`: run directories and atomic checkpoints
+* :mod:`~gcnt.run.directory`: run directories and atomic checkpoints
 * :mod:`~gcnt.rl.evaluate`: evaluation on any robots (zero-shot included)
 * :mod:`~gcnt.rl.accelerate`: the ``compile:`` switches (torch.compile, CUDA graphs, AMP)
 """

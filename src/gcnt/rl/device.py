@@ -12,7 +12,7 @@ optimisers' state, PPO's rollout batch and observation statistics, and (with
 * learning: a collected batch is moved to the device when an update starts (TD3's
   ``TD3Learner.step``, PPO's ``PPOLearner.learn``).
 
-Checkpoints hold CPU tensors only (:func:`gcnt.rl.run_dir.plain_state`) and are loaded onto the
+Checkpoints hold CPU tensors only (:func:`gcnt.run.directory.plain_state`) and are loaded onto the
 CPU; each ``load_state_dict`` places what it restores (modules copy into their parameters,
 optimisers through :func:`load_optimizer_state`), so a run trained on a GPU evaluates or resumes
 on a CPU and back, with its optimiser state.

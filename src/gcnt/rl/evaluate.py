@@ -27,11 +27,11 @@ from gcnt.files import write_output, write_text
 from gcnt.morphology import Robot
 from gcnt.morphology.catalogues import resolve_robots
 from gcnt.recipes import Recipe
-from gcnt.resolved_run import resolve_run
 from gcnt.rl.algorithm import get_algorithm
 from gcnt.rl.device import on_device
 from gcnt.rl.factories import base_env, make_env, run_robots
-from gcnt.rl.run_dir import CHECKPOINT_MISFITS, RunDirError, strict_json
+from gcnt.run.directory import CHECKPOINT_MISFITS, RunDirError, strict_json
+from gcnt.run.resolved import resolve_run
 
 log = logging.getLogger(__name__)
 

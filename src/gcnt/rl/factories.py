@@ -18,12 +18,12 @@ from gcnt.morphology import Robot
 from gcnt.nn.graph_lookup import is_table_key
 from gcnt.nn.registry import make_network
 from gcnt.recipes import Recipe
-from gcnt.resolved_run import benchmark_of, resolve_run
+from gcnt.run.resolved import benchmark_of, resolve_run
 
 
 def run_robots(recipe: Recipe) -> tuple[list[Robot], list[Robot]]:
     """The recipe's training and test robots as its run's record holds them
-    (:func:`gcnt.resolved_run.resolve_run`: resolved and checked once per recipe)."""
+    (:func:`gcnt.run.resolved.resolve_run`: resolved and checked once per recipe)."""
     record = resolve_run(recipe)
     return list(record.train_robots), list(record.test_robots)
 

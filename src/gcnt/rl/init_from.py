@@ -13,7 +13,7 @@ The two runs must agree on what the weights mean: the algorithm, the benchmark a
 (method, size preset and sizes); every tensor's shape is then checked, which covers the per-limb
 token width and a height map present on one side only. A disagreement is one RecipeError naming
 both sides. The new run's ``recipe.yaml`` records where it started, under ``resolved.init_from``:
-the source run directory, its task and fingerprint (:attr:`gcnt.run_data.Run.fingerprint`:
+the source run directory, its task and fingerprint (:attr:`gcnt.run.data.Run.fingerprint`:
 fine-tunes of the seeds of one experiment are seeds of one fine-tune), the env steps of its
 checkpoint and the checkpoint file's SHA-256.
 
@@ -30,9 +30,9 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.recipes import Recipe, RecipeError
-from gcnt.resolved_run import network_sizes, resolve_run
 from gcnt.rl.algorithm import Algorithm
-from gcnt.rl.run_dir import RunDir
+from gcnt.run.directory import RunDir
+from gcnt.run.resolved import network_sizes, resolve_run
 from gcnt.suggest import existing_path
 
 #: the key of the record in the run's ``resolved:`` section
@@ -71,7 +71,7 @@ def origin(recipe: Recipe, algo: Algorithm, *, resume: bool = False) -> dict[str
 def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
     """Load the trained networks of the run ``recipe.init_from`` into ``algo`` (built for
     ``recipe``); returns the record of where it started."""
-    from gcnt.run_data import Run
+    from gcnt.run.data import Run
 
     where = f"init_from {recipe.init_from}"
     source = _source(recipe)
@@ -83,7 +83,7 @@ def start_from(recipe: Recipe, algo: Algorithm) -> dict[str, Any]:
             f"{where}: its checkpoint is a {state['algo']} learner, this recipe has "
             f"algo={recipe.algo}"
         )
-    from gcnt.rl.run_dir import CHECKPOINT_MISFITS, CheckpointError
+    from gcnt.run.directory import CHECKPOINT_MISFITS, CheckpointError
 
     try:
         algo.start_from(state["learner"])
@@ -131,7 +131,7 @@ def check_compatible(recipe: Recipe, source: Recipe, where: str = "init_from") -
 
 def file_sha256(path: Path) -> str:
     from gcnt.files import open_regular
-    from gcnt.rl.run_dir import MAX_CHECKPOINT_BYTES, CheckpointError
+    from gcnt.run.directory import MAX_CHECKPOINT_BYTES, CheckpointError
 
     what = "a checkpoint is the file gcnt train writes"
     with open_regular(path, MAX_CHECKPOINT_BYTES, what, CheckpointError) as f:

@@ -35,27 +35,25 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from gcnt import keys as K
-from gcnt import provenance
 from gcnt.files import KiB, read_text
 from gcnt.morphology import Robot
 from gcnt.recipes import Recipe, RecipeError
-from gcnt.resolved_run import RunRecord, network_sizes, resolve_run
 from gcnt.rl import init_from, stop
 from gcnt.rl.accelerate import choose_matmul_precision, collector_kwargs
 from gcnt.rl.algorithm import Algorithm, CollectSettings, get_algorithm
 from gcnt.rl.evaluate import check_eval_robots, evaluate, render_policy, write_eval
 from gcnt.rl.factories import benchmark_of
-from gcnt.rl.run_dir import (
+from gcnt.rl.run_logger import RunLogger, check_logger, make_logger
+from gcnt.run import provenance
+from gcnt.run.directory import (
     CHECKPOINT_MISFITS,
     CheckpointError,
     RunDir,
-    check_logger,
-    make_logger,
     seed_everything,
     set_rng_state,
 )
-from gcnt.rl.run_logger import RunLogger
-from gcnt.run_record import store_robots
+from gcnt.run.record import store_robots
+from gcnt.run.resolved import RunRecord, network_sizes, resolve_run
 
 log = logging.getLogger(__name__)
 
@@ -215,7 +213,7 @@ def check_network(recipe: Recipe) -> None:
 
 def check_recipe(recipe: Recipe, *, lookups: dict | None = None) -> RunRecord:
     """What a run of ``recipe`` would refuse before building anything: the logger, the run's
-    record (:func:`gcnt.resolved_run.resolve_run`: the network's name, preset and sizes, the
+    record (:func:`gcnt.run.resolved.resolve_run`: the network's name, preset and sizes, the
     benchmark and world, the training and test robots, each known, of the benchmark, the two
     lists apart), the algorithm and the robots evaluated at the end. A RecipeError (or a robot
     error) naming the culprit; ``gcnt sweep`` checks every run so (``lookups``: the robot specs

@@ -181,7 +181,7 @@ def run_local(
     the seeds of one TD3 experiment train in one process (:func:`stacked_groups`; None: on a
     CUDA device only); a stacked start that is refused before it made any run directory (a
     method the stacked update cannot vmap) runs its seeds one by one instead."""
-    from gcnt.rl.run_lock import holder
+    from gcnt.run.lock import holder
 
     fresh = [r for r in manifest.runs if r.state not in ACTIVE and commands(r)]
     for r in fresh:  # a FIFO or a link as a log: refused before any run starts

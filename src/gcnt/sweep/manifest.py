@@ -21,7 +21,7 @@ from gcnt.files import (
     read_text,
     write_text,
 )
-from gcnt.run_data import RECIPE_FILE, Run
+from gcnt.run.data import RECIPE_FILE, Run
 from gcnt.sweep.spec import RunSpec
 from gcnt.sweep.status import SweepError, now, read_record, slurm_states
 
@@ -77,8 +77,8 @@ class Manifest:
 
     def record_session(self) -> None:
         """Add this process's session (code, packages, machine, command:
-        :func:`gcnt.provenance.collect`) to the manifest's ``provenance`` (saved with it)."""
-        from gcnt import provenance
+        :func:`gcnt.run.provenance.collect`) to the manifest's ``provenance`` (saved with it)."""
+        from gcnt.run import provenance
 
         kept = self.meta.get("provenance")
         sessions = kept.get("sessions") if isinstance(kept, dict) else None

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gcnt.run_data import CHECKPOINT, RECIPE_FILE, Run
+from gcnt.run.data import CHECKPOINT, RECIPE_FILE, Run
 from gcnt.sweep.status import ACTIVE, SLURM_FAILED, SLURM_REQUEUED, SLURM_RUNNING, SLURM_WAITING
 
 
@@ -75,7 +75,7 @@ class RunSpec:
             if word in SLURM_REQUEUED:
                 self.state = "requeued"
                 return
-        from gcnt.rl.run_lock import holder
+        from gcnt.run.lock import holder
 
         if files != "done" and holder(self.run_dir) is not None:
             self.state = "running"

@@ -229,7 +229,7 @@ class RobotReplay:
         """Read :meth:`save`'s file (tensors and plain types only: ``weights_only=True``); an
         unreadable or refused file is a CheckpointError naming it."""
         from gcnt.files import GiB, open_regular
-        from gcnt.rl.run_dir import CheckpointError, load_error_detail
+        from gcnt.run.directory import CheckpointError, load_error_detail
 
         what = "a replay file is what gcnt train writes next to its checkpoint"
         f = open_regular(path, 1024 * GiB, what, CheckpointError)

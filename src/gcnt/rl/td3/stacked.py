@@ -34,7 +34,6 @@ from torch.nn.attention import sdpa_kernel
 
 from gcnt.keys import ACTION, MORPH_ID
 from gcnt.rl.accelerate import accelerate, compile_step, optimizer_kwargs
-from gcnt.rl.run_dir import rng_state, set_rng_state
 from gcnt.rl.td3.ensemble import VMAP_SDPA
 from gcnt.rl.td3.learner import (
     TD3,
@@ -46,6 +45,7 @@ from gcnt.rl.td3.learner import (
 )
 from gcnt.rl.td3.loss import target_noise
 from gcnt.rl.td3.tensor_chain import has_dropout
+from gcnt.run.directory import rng_state, set_rng_state
 
 #: where a stacked batch carries each seed's target-smoothing noise (shaped like the action)
 NOISE = "target_noise"
@@ -289,7 +289,7 @@ def _stack_adam_state(states: list[dict[str, Any]], what: str) -> dict[str, Any]
 
 
 class SeedRNG:
-    """Each seed's global random state (:func:`gcnt.rl.run_dir.rng_state`: torch CPU and CUDA,
+    """Each seed's global random state (:func:`gcnt.run.directory.rng_state`: torch CPU and CUDA,
     NumPy, Python), swapped in while working for that seed."""
 
     def __init__(self, num_seeds: int) -> None:

@@ -39,9 +39,10 @@ from gcnt.rl.loop import (
     progress_bar,
     stop_here,
 )
-from gcnt.rl.run_dir import RunDir, make_logger
-from gcnt.rl.run_lock import run_locks
+from gcnt.rl.run_logger import make_logger
 from gcnt.rl.td3.stacked import SeedRNG, StackedTD3
+from gcnt.run.directory import RunDir
+from gcnt.run.lock import run_locks
 
 log = logging.getLogger(__name__)
 

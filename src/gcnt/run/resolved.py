@@ -4,7 +4,7 @@ command, and what every part of the command (the checks, the env, the evaluation
 
 :func:`resolve_run` builds it from a recipe: the benchmark and world, the training and test
 robots (each spec looked up once; name, family, catalogue and the sha256 of the stored MJCF of
-each, :func:`gcnt.run_record.robot_record`), the method and its network sizes as the preset and
+each, :func:`gcnt.run.record.robot_record`), the method and its network sizes as the preset and
 overrides resolve them, the algorithm and its settings, the plugins by identity, the device and
 the seed. The checks of the recipe that need it resolved are made there, once: the benchmark and
 world known, the network's name and sizes, the training robots given, of the benchmark and apart
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gcnt.recipes import Recipe, RecipeError, run_robot_specs
-from gcnt.run_record import PLUGINS_KEY, ROBOTS_KEY
+from gcnt.run.record import PLUGINS_KEY, ROBOTS_KEY
 
 #: the key, in a run's ``resolved:`` section, of the record's fields other than its robots and
 #: plugins
@@ -53,7 +53,7 @@ class RunRecord:
     device: str
     seed: int
     #: ``{"train": [names], "test": [names], "index": {name: {"sha256", "family", "catalogue",
-    #: "registered"}}}`` (:func:`gcnt.run_record.robot_record`)
+    #: "registered"}}}`` (:func:`gcnt.run.record.robot_record`)
     robots: dict[str, Any]
     #: ``[{"name", "sha256"}]`` (:func:`gcnt.plugins.identities`)
     plugins: list[dict[str, Any]]
@@ -218,7 +218,7 @@ def resolve_run(recipe: Recipe, *, lookups: dict[str, Any] | None = None) -> Run
 def _resolve(recipe: Recipe, lookups: dict[str, Any]) -> RunRecord:
     from gcnt import plugins
     from gcnt.morphology.catalogues import resolve_robots
-    from gcnt.run_record import robot_record
+    from gcnt.run.record import robot_record
 
     bench = benchmark_of(recipe)
     network = network_sizes(recipe)

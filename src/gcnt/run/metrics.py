@@ -1,6 +1,6 @@
 """``metrics.jsonl``, a run's local record: one strict-JSON line per log step.
 
-Written by :meth:`gcnt.rl.run_dir.RunDir.log_metrics` and read by every reader (resume, the
+Written by :meth:`gcnt.run.directory.RunDir.log_metrics` and read by every reader (resume, the
 analysis commands) through :func:`read_metrics`. A run stopped while appending a line (killed,
 or a full disk) leaves that last line incomplete: it is dropped with one warning. A corrupt
 line before the last one is damage of another kind (two writers, an edit) and is an error

@@ -1,5 +1,5 @@
 """A run's directory: resolved recipe, metrics, checkpoints, eval results, videos, and
-``provenance.json`` (the code, packages and command of each session: :mod:`gcnt.provenance`).
+``provenance.json`` (the code, packages and command of each session: :mod:`gcnt.run.provenance`).
 
 Nothing here depends on W&B being reachable: ``metrics.jsonl`` (one JSON line per log step) is the
 local record, and W&B (offline by default) or CSV logging mirrors it through torchrl's loggers.
@@ -8,35 +8,32 @@ local record, and W&B (offline by default) or CSV logging mirrors it through tor
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
-import os
 import random
 import shutil
 from collections import OrderedDict
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
-from gcnt import provenance
 from gcnt.files import GiB, append_text, open_regular, rename, save_torch, write_text
-from gcnt.recipes import Recipe, RecipeError, save_recipe
-from gcnt.rl.metrics_log import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
+from gcnt.recipes import Recipe, save_recipe
+from gcnt.run import provenance
+from gcnt.run.lock import RunBusyError, RunDirError, run_lock  # noqa: F401 (RunDirError: raised and caught as gcnt.run.directory's)
+from gcnt.run.metrics import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
     metrics_line,
     read_metrics,
     read_metrics_row,
     strict_json,
 )
-from gcnt.rl.run_lock import RunBusyError, RunDirError, run_lock  # noqa: F401 (RunDirError: raised and caught as gcnt.rl.run_dir's)
-from gcnt.rl.run_logger import RunLogger
-from gcnt.run_record import load_run_recipe
+from gcnt.run.record import load_run_recipe
 
 if TYPE_CHECKING:  # annotations only: the robots' module is not loaded with the run directory
-    from gcnt.morphology import Robot
+    pass
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +77,7 @@ class RunDir:
         if recipe.run_dir:
             return cls(recipe.run_dir)
         method = f"{recipe.algo}-{recipe.network.name}"
-        base = Path("runs") / _slug(recipe.task) / method / f"seed{recipe.seed}"
+        base = Path("runs") / folder_name(recipe.task) / method / f"seed{recipe.seed}"
         path, n = base, 1
         while (path / CHECKPOINT).exists() or (path / RECIPE_FILE).exists():
             path, n = base.with_name(f"{base.name}-{n}"), n + 1
@@ -165,7 +162,7 @@ class RunDir:
         save_recipe(recipe, self.recipe_path)
 
     def load_recipe(self, overrides: list[str] | None = None, *, anywhere: bool = False) -> Recipe:
-        """The run's recipe to go on with on this machine (:func:`gcnt.run_record.load_run_recipe`:
+        """The run's recipe to go on with on this machine (:func:`gcnt.run.record.load_run_recipe`:
         ``anywhere`` for a run read, not trained on)."""
         if not self.recipe_path.exists():
             raise FileNotFoundError(f"{self.path}: no {RECIPE_FILE}; is this a gcnt run directory?")
@@ -177,7 +174,7 @@ class RunDir:
             append_text(self.metrics_path, metrics_line(row))
 
     def read_metrics(self) -> list[dict[str, Any]]:
-        """The logged rows (:func:`gcnt.rl.metrics_log.read_metrics`: ``null`` reads back as
+        """The logged rows (:func:`gcnt.run.metrics.read_metrics`: ``null`` reads back as
         NaN, an incomplete last line is dropped with a warning); a damaged line before it is a
         RunDirError naming the file and line."""
         try:
@@ -490,114 +487,6 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
 
 
-def check_logger(recipe: Recipe) -> None:
-    """W&B's tags and online logging's credentials: a RecipeError before a run starts, not
-    W&B's traceback after its directory exists."""
-    cfg = recipe.logger
-    if cfg.backend != "wandb":
-        return
-    for tag in cfg.tags:
-        if not 1 <= len(tag) <= MAX_TAG:
-            raise RecipeError(
-                f"logger.tags: {tag!r} has {len(tag)} characters; W&B takes 1 to {MAX_TAG}"
-            )
-    if cfg.mode != "online":
-        return
-    import wandb
-
-    try:
-        ok = wandb.login(verify=False, prompt=False)
-    except Exception as e:  # an API key of a malformed shape
-        raise RecipeError(f"logger.mode=online: W&B cannot log in ({e})") from None
-    if not ok:
-        raise RecipeError(
-            "logger.mode=online but W&B has no API key: run `wandb login` or set WANDB_API_KEY, "
-            "or log offline (logger.mode=offline) and `wandb sync` later"
-        )
-
-
-#: W&B's longest tag
-MAX_TAG = 64
-
-
-def make_logger(
-    recipe: Recipe, run: RunDir, robots: Sequence[Robot] = (), *, concurrent: bool = False
-) -> RunLogger | None:
-    """The run's torchrl logger per the recipe, fed one row per log step
-    (:class:`gcnt.rl.run_logger.RunLogger`; None for backend "none"). ``concurrent``: other runs
-    of this process log at the same time (each W&B run is then created beside the others).
-
-    A W&B run is tagged ``seed:N`` (and ``logger.tags``); its config is the recipe, the method,
-    the training ``robots`` (name: hash of the robot's MJCF) and the code of the running process
-    (gcnt version, commit, uncommitted changes, plugin files). A resumed run
-    continues the same W&B run (:func:`wandb_id`), but W&B writes each session to a folder of
-    its own (``<run>/wandb/offline-run-<start time>-<id>``, whatever ``resume`` says); ``wandb
-    sync`` uploads a run's folders into that one W&B run, in the order they were started."""
-    cfg = recipe.logger
-    method = recipe.network.name
-    name = cfg.name or f"{recipe.task}-{recipe.algo}-{method}-seed{recipe.seed}"
-    if cfg.backend == "none":
-        return None
-    if cfg.backend == "csv":
-        from torchrl.record.loggers import CSVLogger
-
-        return RunLogger(CSVLogger(exp_name=name, log_dir=str(run.inside("csv"))))
-    from torchrl.record.loggers import WandbLogger
-
-    os.environ.setdefault("WANDB_SILENT", "true")
-    project = cfg.project or f"gcnt-{_slug(recipe.env.benchmark)}"
-    group = cfg.group or f"{recipe.task}-{recipe.algo}-{method}"
-    logger = WandbLogger(
-        exp_name=name,
-        offline=cfg.mode == "offline",
-        # also to wandb.init itself: W&B keeps the settings of its first use in a process, so
-        # torchrl's WANDB_MODE variable alone does not make a later run offline
-        mode=cfg.mode,
-        save_dir=str(run.path),
-        project=project,
-        group=group,
-        tags=list(dict.fromkeys([*cfg.tags, f"seed:{recipe.seed}"])),
-        config={
-            **recipe.to_dict(),
-            "method": method,
-            "code": _code(run),
-            "robots": {r.name: robot_hash(r) for r in robots},
-        },
-        id=wandb_id(run, name),
-        resume="allow",
-        # torchrl would write the Python packages into config["env"], over the recipe's env
-        # section (benchmark, robots, world); the run's code is in config["code"]
-        log_env_packages=False,
-        **({"reinit": "create_new"} if concurrent else {}),
-    )
-    return RunLogger(logger)
-
-
-def robot_hash(robot: Robot) -> str:
-    """A short hash of a robot's MJCF text: equal robots, equal hashes, whatever their files."""
-    return hashlib.sha256(robot.xml.encode()).hexdigest()[:16]
-
-
-def wandb_id(run: RunDir, name: str) -> str:
-    """The W&B run id of ``run``: the one its earlier trainings used (W&B names each session's
-    ``run-<id>.wandb`` file after it), so that a resumed run continues the same W&B run even
-    after its directory was moved or its ``logger.name`` changed; for a new run, ``name`` and
-    a hash of the directory's path."""
-    for f in sorted(run.inside("wandb").glob("*run-*/run-*.wandb")):
-        return f.stem[len("run-") :]
-    return _slug(f"{name}-{hashlib.md5(str(run.path.resolve()).encode()).hexdigest()[:8]}")
-
-
-def _code(run: RunDir) -> dict[str, Any]:
-    """gcnt version, commit, uncommitted changes and plugins (name, sha256) of the run's latest
-    session (empty where the run has no readable provenance)."""
-    try:
-        sessions = provenance.read_sessions(run.path)
-    except provenance.ProvenanceError:
-        sessions = []
-    last = sessions[-1] if sessions else {}
-    return {k: last[k] for k in ("gcnt_version", "git_commit", "git_dirty", "plugins") if k in last}
-
-
-def _slug(text: str) -> str:
+def folder_name(text: str) -> str:
+    """``text`` as one folder name: ``Walker++`` -> ``Walkerpp``, other signs -> ``-``."""
     return "".join(c if c.isalnum() or c in "-_" else "-" for c in text.replace("+", "p"))

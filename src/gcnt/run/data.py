@@ -5,7 +5,7 @@ below :mod:`gcnt.rl` and :mod:`gcnt.analysis`.
 A run directory, as ``gcnt train`` writes it::
 
     recipe.yaml            the resolved recipe (its ``resolved:`` section: what the run derived,
-                           its robots and plugins: :mod:`gcnt.run_record`)
+                           its robots and plugins: :mod:`gcnt.run.record`)
     metrics.jsonl          one JSON row per log step: env_steps, train_return/mean, ...
                            (a non-finite value is ``null``; read back as NaN)
     checkpoints/last.pt    the latest checkpoint
@@ -462,10 +462,10 @@ class Run:
 
     @property
     def record(self) -> Any:
-        """The run's record as it wrote it (:class:`gcnt.resolved_run.RunRecord`: benchmark,
+        """The run's record as it wrote it (:class:`gcnt.run.resolved.RunRecord`: benchmark,
         robots with their hashes, method and network sizes, algorithm settings, plugins, device,
         seed); None for a run written before the record."""
-        from gcnt.resolved_run import RunRecord
+        from gcnt.run.resolved import RunRecord
 
         section = self.recipe.get("resolved")
         return RunRecord.from_resolved(section) if isinstance(section, dict) else None
@@ -485,10 +485,10 @@ class Run:
     # --- metrics
     def metrics(self) -> list[dict[str, Any]]:
         """Rows of ``metrics.jsonl`` with a numeric ``env_steps``, ``null`` read as NaN
-        (:func:`gcnt.rl.metrics_log.read_metrics`: an incomplete last line, from a run stopped
+        (:func:`gcnt.run.metrics.read_metrics`: an incomplete last line, from a run stopped
         mid-write, is dropped with a warning; a damaged line before it is an AnalysisError
         naming the file and line)."""
-        from gcnt.rl.metrics_log import MetricsFileError, read_metrics
+        from gcnt.run.metrics import MetricsFileError, read_metrics
 
         try:
             rows = read_metrics(self.path / METRICS_FILE)
@@ -507,7 +507,7 @@ class Run:
         """The trained policy's weights from the last checkpoint (``{"actor": ...}``, and the
         observation statistics where the algorithm keeps them); an unreadable checkpoint is an
         AnalysisError naming it."""
-        from gcnt.rl.run_dir import CheckpointError, RunDir
+        from gcnt.run.directory import CheckpointError, RunDir
 
         try:
             state = RunDir(self.path).load_checkpoint()
