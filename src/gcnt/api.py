@@ -66,12 +66,12 @@ def load_run(run: str | Path) -> LoadedRun:
 
 
 def _recipe_and_robots(run: str | Path, robots: Sequence[str] | None, device: str):
-    from gcnt.rl.evaluate import _pad, eval_robots
+    from gcnt.rl.evaluate import eval_padding, eval_robots
     from gcnt.run.directory import RunDir
 
     recipe = RunDir(run).load_recipe([f"device={device}"], anywhere=True)
     chosen = eval_robots(list(robots) if robots is not None else recipe.env.robots, recipe)
-    return recipe, chosen, _pad(recipe, chosen)
+    return recipe, chosen, eval_padding(recipe, chosen)
 
 
 def make_env(

@@ -53,7 +53,7 @@ def eval_robots(specs: Sequence[str], recipe: Recipe | None = None) -> list[Robo
     return resolve_run(recipe).robots_of(specs, recipe)
 
 
-def _pad(recipe: Recipe, robots: Sequence[Robot]) -> int:
+def eval_padding(recipe: Recipe, robots: Sequence[Robot]) -> int:
     """Pad at least as much as in training: size-dependent networks (the per-robot MLP) need it,
     and cannot take a robot with more limbs (a RobotTooLargeError naming it)."""
     from gcnt.envs.robot_table import RobotTooLargeError
@@ -76,7 +76,7 @@ def check_eval_robots(recipe: Recipe, specs: Sequence[str]) -> list[Robot]:
     that evaluating would raise, before anything runs)."""
     robots = eval_robots(specs, recipe)
     if robots:
-        _pad(recipe, robots)
+        eval_padding(recipe, robots)
     return robots
 
 
@@ -110,7 +110,7 @@ def evaluate(
     robots = eval_robots(robot_specs, recipe)
     copies = max(1, min(parallel, episodes))
     quota = [episodes // copies + (c < episodes % copies) for c in range(copies)]
-    env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=_pad(recipe, robots))
+    env = make_env(recipe, robots, copies=copies, seed=seed, max_limbs=eval_padding(recipe, robots))
     try:
         actor = acting_policy(recipe, policy_state, env, deterministic)
     except CHECKPOINT_MISFITS as e:
@@ -188,7 +188,7 @@ def render_policy(
         robots = [robot]
     else:
         robots = eval_robots([robot] if robot else recipe.env.robots, recipe)[:1]
-    env = make_env(recipe, robots, seed=recipe.seed, max_limbs=_pad(recipe, robots), num_threads=1)
+    env = make_env(recipe, robots, seed=recipe.seed, max_limbs=eval_padding(recipe, robots), num_threads=1)
     actor = acting_policy(recipe, policy_state, env, True)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         out = render_rollout(base_env(env), actor, steps=steps, path=path)
