@@ -188,7 +188,9 @@ def render_policy(
         robots = [robot]
     else:
         robots = eval_robots([robot] if robot else recipe.env.robots, recipe)[:1]
-    env = make_env(recipe, robots, seed=recipe.seed, max_limbs=eval_padding(recipe, robots), num_threads=1)
+    env = make_env(
+        recipe, robots, seed=recipe.seed, max_limbs=eval_padding(recipe, robots), num_threads=1
+    )
     actor = acting_policy(recipe, policy_state, env, True)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         out = render_rollout(base_env(env), actor, steps=steps, path=path)
