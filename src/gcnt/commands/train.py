@@ -56,7 +56,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError
-    from gcnt.run.directory import RunDir
 
     if args.init_from is not None:
         if args.resume:
@@ -68,7 +67,7 @@ def _run(args: argparse.Namespace) -> int:
         args.overrides = [*args.overrides, f"init_from={json.dumps(args.init_from)}"]
     if args.seeds is not None:
         return _run_seeds(args)
-    made: list[RunDir] = []  # a new run's directory, once this command created it
+    made: list = []  # a new run's directory (a RunDir), once this command created it
     try:
         return _train_one(args, made)
     except BaseException:
@@ -79,9 +78,15 @@ def _run(args: argparse.Namespace) -> int:
 
 def _train_one(args: argparse.Namespace, made: list) -> int:
     from gcnt.recipes import RecipeError, load_recipe
+    from gcnt.run.lock import run_lock
+
+    recipe = None
+    if not args.resume:  # checked before torch is imported (by what follows): a bad recipe in ~1 s
+        if not args.recipe:
+            raise RecipeError("give a recipe file or --resume RUN_DIR")
+        recipe = load_recipe(args.recipe, args.overrides)
     from gcnt.rl.init_from import own_task
     from gcnt.run.directory import RunDir
-    from gcnt.run.lock import run_lock
 
     with contextlib.ExitStack() as held:  # the run directory's lock, held until the end
         if args.resume:
@@ -94,9 +99,6 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
             if not resume:
                 log.info("%s has no checkpoint yet: training it from the start", run_dir.path)
         else:
-            if not args.recipe:
-                raise RecipeError("give a recipe file or --resume RUN_DIR")
-            recipe = load_recipe(args.recipe, args.overrides)
             recipe.plugins = plugins.with_session(recipe.plugins)  # recorded by the run
             own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
             run_dir = RunDir.for_recipe(recipe)
@@ -128,8 +130,6 @@ def _train_one(args: argparse.Namespace, made: list) -> int:
 
 def _run_seeds(args: argparse.Namespace) -> int:
     from gcnt.recipes import RecipeError, load_recipe
-    from gcnt.rl.init_from import own_task
-    from gcnt.rl.td3.stacked_loop import parse_seeds, seed_recipes, train_seeds
 
     if args.resume:
         raise RecipeError(
@@ -139,6 +139,9 @@ def _run_seeds(args: argparse.Namespace) -> int:
     if not args.recipe:
         raise RecipeError("--seeds: give a recipe file")
     recipe = load_recipe(args.recipe, args.overrides)
+    from gcnt.rl.init_from import own_task
+    from gcnt.rl.td3.stacked_loop import parse_seeds, seed_recipes, train_seeds
+
     recipe.plugins = plugins.with_session(recipe.plugins)  # recorded by the runs
     own_task(recipe)  # a fine-tuned run: <source task>-ft, never its source's task
     runs = train_seeds(seed_recipes(recipe, parse_seeds(args.seeds)))
