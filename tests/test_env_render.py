@@ -188,3 +188,28 @@ def test_eval_video_steps(trained, tmp_path, capsys):
     with pytest.raises(SystemExit):
         gcnt([*argv, "--video-steps", "0"])
     assert "must be >= 1" in capsys.readouterr().err
+
+
+def test_a_video_of_several_robots_tiles_them_until_every_episode_ends(tmp_path):
+    """Three robots in one env are filmed side by side (a 2 x 2 grid of 32 x 32 tiles, the
+    fourth black); the video lasts until the last episode ends (the 5-step limit)."""
+    imageio = pytest.importorskip("imageio.v2")
+    from gcnt.envs.render import render_rollout
+    from gcnt.envs.unimal import UnimalEnv
+    from gcnt.morphology.catalogues import resolve_robots
+
+    robots = resolve_robots(["unimal_0001", "unimal_0002", "unimal_0003"])
+    env = UnimalEnv(robots, seed=0, num_threads=1, max_episode_steps=5)
+    try:
+        path = render_rollout(env, path=tmp_path / "all.mp4", width=64, height=64, index=range(3))
+    except Exception as e:
+        if _no_gl(e):
+            pytest.skip(f"no headless OpenGL: {e!r}")
+        raise
+    finally:
+        env.close()
+    frames = [f for f in imageio.get_reader(str(path))]  # noqa: C416 (the reader has no len)
+    assert len(frames) == 5 and frames[0].shape == (64, 64, 3)
+    tiles = [frames[-1][r : r + 32, c : c + 32] for r in (0, 32) for c in (0, 32)]
+    assert all(t.std() > 0 for t in tiles[:3])  # each robot's tile shows a scene
+    assert tiles[3].max() <= 16  # no fourth robot: black (H.264 may blur the edge)

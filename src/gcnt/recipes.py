@@ -114,7 +114,7 @@ class EvalConfig:
     robots: list[str] = field(default_factory=list)
     #: the policy's mean action (True) or sampled actions (False: ModuMorph's PPO protocol)
     deterministic: bool = True
-    #: render a video of the first robot at each evaluation
+    #: render a video at each evaluation: every training robot side by side (up to 16)
     video: bool = False
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import copy
 import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import mujoco
@@ -30,6 +30,8 @@ log = logging.getLogger(__name__)
 
 #: Videos are written at the control rate, subsampled to at most this many frames per second.
 MAX_FPS = 60
+#: the most robots one video tiles (the first ones of the env)
+MAX_TILES = 16
 #: the near and far clipping planes of every video, metres
 NEAR_CLIP, FAR_CLIP = 0.05, 400.0
 
@@ -172,12 +174,14 @@ def render_rollout(
     width: int = 640,
     height: int = 480,
     *,
-    index: int = 0,
+    index: int | Sequence[int] = 0,
     seed: int | None = 0,
 ) -> Path:
     """Roll out ``policy`` (uniform random actions if None) and write sub-env ``index`` as mp4:
     one episode, from a reset until it ends (the robot falls, or the env's episode length), or
-    ``steps`` control steps if fewer.
+    ``steps`` control steps if fewer. Several indices (at most :data:`MAX_TILES`) are filmed side
+    by side in a grid of ``width`` x ``height``, each until its own episode ends (then its last
+    picture stays), the video until every one has ended.
 
     ``env_or_robot`` is a :class:`~gcnt.envs.BatchedMujocoEnv` (its sub-envs all step; others
     whose episodes end are reset) or a :class:`~gcnt.morphology.Robot` (a one-robot env of its
@@ -192,19 +196,26 @@ def render_rollout(
 
     if steps is not None and steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
+    indices = [index] if isinstance(index, int) else list(index)[:MAX_TILES]
+    if not indices:
+        raise ValueError("no sub-env to film")
     own = isinstance(env_or_robot, Robot)
     if own:
         bench = get_benchmark(env_or_robot.catalogue)
         env = bench.make_env([env_or_robot], seed=seed, num_threads=1)
     else:
         env = env_or_robot
-    dt = float(env.dt[index])
+    dt = float(env.dt[indices[0]])
     every = max(1, int(np.ceil((1.0 / dt) / MAX_FPS)))
     limit = env.max_episode_steps if steps is None else steps  # an episode ends by then
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-
-    filming = Filming(env, index, camera, width, height)
+    cols = int(np.ceil(np.sqrt(len(indices))))
+    rows = -(-len(indices) // cols)
+    tile_w, tile_h = (width // cols) & ~1, (height // rows) & ~1  # even, for H.264
+    films = [Filming(env, i, camera, tile_w, tile_h) for i in indices]
+    last: list[np.ndarray | None] = [None] * len(indices)  # an ended episode's last picture
+    shown: list[np.ndarray] = []
     t = 0
     try:
         with (
@@ -213,22 +224,41 @@ def render_rollout(
             torch.no_grad(),
         ):
             td = env.reset()
-            # each frame shows the state before a step; the state the episode ends in is not
+            # each frame shows the state before a step; the state an episode ends in is not
             # filmed, as the env resets the sub-env in the same call
             for t in range(limit):
                 if t % every == 0:
-                    writer.append_data(filming.frame())
+                    shown = [
+                        p if p is not None else f.frame() for p, f in zip(last, films, strict=True)
+                    ]
+                    writer.append_data(_grid(shown, cols, rows) if len(films) > 1 else shown[0])
                 if policy is None:
                     td.update(env.action_spec.rand())
                 else:
                     td = policy(td)
                 td, td_next = env.step_and_maybe_reset(td)
-                if bool(td["next", "done"][index].any()):
+                done = td["next", "done"].reshape(env.batch_size[0], -1).any(-1)
+                for k, i in enumerate(indices):
+                    if last[k] is None and bool(done[i]):  # its picture before the reset stays
+                        last[k] = shown[k]
+                if all(p is not None for p in last):
                     break
                 td = td_next
     finally:
-        filming.close()
+        for f in films:
+            f.close()
         if own:
             env.close()
-    log.info("wrote %s (%d steps of %s)", path, t + 1, env.robots[index].name)
+    names = ", ".join(env.robots[i].name for i in indices)
+    log.info("wrote %s (%d steps of %s)", path, t + 1, names)
     return path
+
+
+def _grid(pictures: list[np.ndarray], cols: int, rows: int) -> np.ndarray:
+    """Pictures of one size tiled row by row into ``rows`` x ``cols`` (black where none is)."""
+    h, w, c = pictures[0].shape
+    out = np.zeros((rows * h, cols * w, c), dtype=pictures[0].dtype)
+    for k, p in enumerate(pictures):
+        r, q = divmod(k, cols)
+        out[r * h : (r + 1) * h, q * w : (q + 1) * w] = p
+    return out

@@ -180,20 +180,23 @@ def render_policy(
     steps: int | None = None,
 ) -> Path:
     """A video of one episode of the deterministic policy on ``robot`` (a robot, or a spec
-    whose first robot is filmed; default: the first training robot), at most ``steps`` control
-    steps (None: until the episode ends)."""
-    from gcnt.envs.render import render_rollout
+    whose first robot is filmed; default: every training robot, side by side, up to
+    :data:`gcnt.envs.render.MAX_TILES`), at most ``steps`` control steps (None: until the
+    episodes end)."""
+    from gcnt.envs.render import MAX_TILES, render_rollout
 
     if isinstance(robot, Robot):
         robots = [robot]
+    elif robot:
+        robots = eval_robots([robot], recipe)[:1]
     else:
-        robots = eval_robots([robot] if robot else recipe.env.robots, recipe)[:1]
+        robots = eval_robots(recipe.env.robots, recipe)[:MAX_TILES]
     env = make_env(
         recipe, robots, seed=recipe.seed, max_limbs=eval_padding(recipe, robots), num_threads=1
     )
     actor = acting_policy(recipe, policy_state, env, True)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        out = render_rollout(base_env(env), actor, steps=steps, path=path)
+        out = render_rollout(base_env(env), actor, steps=steps, path=path, index=range(len(robots)))
     env.close()
     return out
 
