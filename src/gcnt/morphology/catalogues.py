@@ -26,15 +26,23 @@ import importlib
 import logging
 import os
 import re
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from gcnt.data_folders import packaged_morphologies, user_morphologies
-from gcnt.files import MiB, read_text, read_yaml
+from gcnt.files import read_yaml
+from gcnt.morphology.catalogue_base import (
+    IMPORTED_INDEX,
+    MAX_SPLIT_FILE_BYTES,
+    BenchmarkFileError,
+    Catalogue,
+    morphologies_dir,
+    stale_files,
+)
 from gcnt.morphology.robot import Robot, load_robot
 from gcnt.morphology.smpenv import SMPENV_ROBOTS, build_mjcf, write_all
+from gcnt.morphology.unimal.imported_set import DEFAULT_NAME, imported_catalogue
 from gcnt.suggest import did_you_mean
 
 #: The SMPENV benchmark split file inside the morphologies folder.
@@ -44,9 +52,6 @@ SPLITS: tuple[str, ...] = ("train", "test")
 #: Further split names a split file may declare: ``variants-<kind>``.
 VARIANT_SPLIT = re.compile(r"^variants-[a-z0-9_]+$")
 DEFAULT_SPLIT = "train"
-
-#: the largest benchmark split file read
-MAX_SPLIT_FILE_BYTES = 16 * MiB
 
 log = logging.getLogger(__name__)
 
@@ -59,51 +64,7 @@ class DuplicateRobotError(ValueError):
     """The same robot named twice in one robot list."""
 
 
-class BenchmarkFileError(ValueError):
-    """A malformed benchmark split file; the message names the file and the culprit."""
-
-
-def morphologies_dir() -> Path:
-    """The folder of the robot files and split files that ship with gcnt (in a checkout, its
-    ``morphologies/``)."""
-    path = packaged_morphologies()
-    if not path.is_dir():
-        raise FileNotFoundError(
-            f"gcnt's robot folder {path} does not exist: this installation of gcnt is incomplete "
-            "(reinstall it; in a checkout, `gcnt robots --rebuild` regenerates the robot files)"
-        )
-    return path
-
-
 # ------------------------------------------------------------------------------ catalogues
-
-
-@dataclass(frozen=True)
-class Catalogue:
-    """One set of robots gcnt can load by name."""
-
-    #: registry name, also ``Robot.catalogue`` of its robots
-    name: str
-    #: every robot name ``load`` accepts (called when names are resolved; keep it cheap)
-    robot_names: Callable[[], Sequence[str]]
-    #: the robot of a name (the registry caches the result)
-    load: Callable[[str], Robot]
-    #: its benchmark split file; a relative path is inside :func:`morphologies_dir`
-    split_file: str | Path | None = None
-    #: write the catalogue's files under a morphologies folder; returns the paths written
-    rebuild: Callable[[Path], list[Path]] | None = None
-    #: problems of the catalogue's files under a morphologies folder (empty: all current)
-    check: Callable[[Path], list[str]] | None = None
-    description: str = ""
-    #: the catalogue's robot files whose robot name is not the file's name: resolved path ->
-    #: robot name (such a file listed by its path is named as the catalogue names it)
-    file_names: Callable[[], dict[str, str]] | None = None
-
-    def split_path(self) -> Path | None:
-        if self.split_file is None:
-            return None
-        path = Path(self.split_file)
-        return path if path.is_absolute() else morphologies_dir() / path
 
 
 _REGISTRY: dict[str, Catalogue] = {}
@@ -148,12 +109,6 @@ def unregister_catalogue(name: str) -> None:
 def refresh_catalogues() -> None:
     """Forget the cached robot names, robots and split files (after catalogue files changed)."""
     _clear_caches()
-
-
-#: A folder ``<name>/`` of the morphologies folder that holds this file is the catalogue
-#: ``<name>`` of UNIMAL robots imported from MetaMorph's files (``gcnt import-unimal``,
-#: ``gcnt.morphology.unimal.imported``); the file is its split file.
-IMPORTED_INDEX = "catalogue.yaml"
 
 
 def imported_catalogues(root: Path | None = None) -> dict[str, Path]:
@@ -208,8 +163,6 @@ def _import_damage(folder: Path, robots: Sequence[str]) -> str | None:
 
 @functools.lru_cache(maxsize=8)
 def _usable_imports(folders: tuple[Path, ...]) -> dict[str, Path]:
-    from gcnt.morphology.unimal.imported import imported_catalogue
-
     owner: dict[str, str] = {}  # robot name -> what defines it
     #: catalogue and benchmark names, case-folded (one name whatever its case) -> what defines it
     named: dict[str, str] = {}
@@ -286,8 +239,6 @@ def get_catalogue(name: str) -> Catalogue:
         module, attr = _BUILTIN[name].split(":")
         _REGISTRY.setdefault(name, getattr(importlib.import_module(module), attr))
     if name not in _REGISTRY and (folder := imported_catalogues().get(name)) is not None:
-        from gcnt.morphology.unimal.imported import imported_catalogue
-
         return imported_catalogue(folder)  # read afresh: the morphologies folder may change
     if name not in _REGISTRY:
         raise ValueError(
@@ -380,32 +331,6 @@ def smpenv_robot(name: str) -> Robot:
     if name not in SMPENV_ROBOTS:
         raise UnknownRobotError(f"unknown SMPENV robot {name!r}{did_you_mean(name, SMPENV_ROBOTS)}")
     return _load("smpenv", name)
-
-
-def stale_files(
-    root: Path, expected: dict[str, str], folder: str, maker: str, kind: str
-) -> list[str]:
-    """Problems of a catalogue's files under the morphologies folder ``root``: each of
-    ``expected`` (relative path -> text) missing or different from what its ``maker`` writes,
-    and ``.xml`` files in ``root/folder`` that are not expected (not ``kind``)."""
-    problems: list[str] = []
-    for rel, text in expected.items():
-        path = root / rel
-        if not path.is_file():
-            problems.append(f"{path}: missing")
-        elif read_own_file(path) != text:
-            problems.append(f"{path}: differs from the {maker}'s output")
-    extra = sorted(p for p in (root / folder).glob("*.xml") if f"{folder}/{p.name}" not in expected)
-    return problems + [f"{p}: not {kind}" for p in extra]
-
-
-def read_own_file(path: Path) -> str | None:
-    """The text of a file gcnt writes into the morphologies folder (None: unreadable, as
-    :func:`gcnt.files.read_text` refuses it), to compare with what it would write."""
-    try:
-        return read_text(path, MAX_SPLIT_FILE_BYTES, "gcnt writes it", BenchmarkFileError)
-    except BenchmarkFileError:
-        return None
 
 
 def _smpenv_check(root: Path) -> list[str]:
@@ -510,8 +435,6 @@ def _benchmark_names(spec: str, benchmarks: dict[str, dict[str, list[str]]]) -> 
         same = [b for b in benchmarks if b.lower() == bench_name.lower()]
         bench_name = same[0] if len(same) == 1 else bench_name
     if bench_name not in benchmarks:
-        from gcnt.morphology.unimal.imported import DEFAULT_NAME
-
         if bench_name == DEFAULT_NAME:  # the paper's robots, not imported on this machine
             raise UnknownRobotError(
                 f"{spec!r}: the benchmark {DEFAULT_NAME} (the paper's UNIMAL-100 robots) is not "

@@ -25,7 +25,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from gcnt.files import write_text
-from gcnt.morphology.catalogues import Catalogue, morphologies_dir, read_own_file
+from gcnt.morphology.catalogue_base import Catalogue, morphologies_dir, read_own_file
 from gcnt.morphology.robot import Robot, RobotFileError, load_robot
 
 CATALOGUE = "mjcf3d"

@@ -20,7 +20,7 @@ import functools
 from pathlib import Path
 
 from gcnt.files import write_text
-from gcnt.morphology.catalogues import Catalogue, morphologies_dir, stale_files
+from gcnt.morphology.catalogue_base import Catalogue, morphologies_dir, stale_files
 from gcnt.morphology.robot import Robot, RobotFileError, load_robot, robot_from_xml
 from gcnt.morphology.unimal.generate import generate
 from gcnt.morphology.unimal.mjcf import build_mjcf

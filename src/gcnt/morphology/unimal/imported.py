@@ -42,28 +42,20 @@ from pathlib import Path, PurePosixPath
 
 from gcnt.data_folders import packaged_morphologies, user_morphologies
 from gcnt.files import NotRegularFileError, open_lock, read_regular, write_bytes, write_text
+from gcnt.morphology.catalogue_base import IMPORTED_INDEX
 from gcnt.morphology.catalogues import (
-    IMPORTED_INDEX,
-    Catalogue,
     catalogue_names,
     get_catalogue,
     imported_catalogues,
     refresh_catalogues,
+    split_keys,
 )
-from gcnt.morphology.robot import MAX_ROBOT_FILE_BYTES, Robot, RobotFileError, robot_from_xml
-from gcnt.morphology.unimal.catalogue import as_unimal, load_unimal
+from gcnt.morphology.robot import MAX_ROBOT_FILE_BYTES, robot_from_xml
+from gcnt.morphology.unimal.catalogue import as_unimal
+from gcnt.morphology.unimal.imported_set import DEFAULT_NAME, SETS, imported_catalogue
 
-#: MetaMorph's set folders, in order, and the split each becomes
-SETS: dict[str, str] = {
-    "train": "train",
-    "test": "test",
-    "dynamics": "variants-dynamics",
-    "kinematics": "variants-kinematics",
-}
 #: sets every import needs
 REQUIRED_SETS = ("train", "test")
-#: the catalogue and benchmark name of an import unless ``--name`` says otherwise
-DEFAULT_NAME = "Unimal100"
 #: the archive's name as MetaMorph's README downloads it
 ARCHIVE = "unimals_100.zip"
 #: what a catalogue name and a robot name (a file name without ``.xml``) may be
@@ -267,8 +259,6 @@ class Defined:
 def defined_in(out: Path) -> Defined:
     """The catalogue, benchmark and robot names defined for gcnt reading the robot-set folder
     ``out`` (beside its own robots and the sets imported among them)."""
-    from gcnt.morphology.catalogues import split_keys
-
     imported = imported_catalogues()
     cats = [get_catalogue(n) for n in catalogue_names() if n not in imported]
     for root in dict.fromkeys([packaged_morphologies(), Path(os.path.abspath(out))]):
@@ -493,30 +483,3 @@ def _check_other_catalogues(member: Member, robots: dict[str, str]) -> None:
         raise UnimalImportError(
             f"{member.where}: robot {member.name!r} is already a robot of catalogue {other!r}"
         )
-
-
-# ------------------------------------------------------------------------------ the catalogue
-
-
-def imported_catalogue(folder: Path) -> Catalogue:
-    """The catalogue of an imported folder (see the module doc); a relative ``folder`` is taken
-    from the current folder, as an absolute path."""
-    folder = Path(os.path.abspath(folder))
-
-    def robot_names() -> list[str]:
-        return [p.stem for s in SETS for p in sorted((folder / s / "xml").glob("*.xml"))]
-
-    def load(name: str) -> Robot:
-        for s in SETS:
-            path = folder / s / "xml" / f"{name}.xml"
-            if path.is_file():
-                return load_unimal(path)
-        raise RobotFileError(f"{folder}: no robot {name!r} in {', '.join(SETS)}")
-
-    return Catalogue(
-        name=folder.name,
-        robot_names=robot_names,
-        load=load,
-        split_file=folder / IMPORTED_INDEX,
-        description=f"MetaMorph's UNIMAL robots, imported into {folder}",
-    )
