@@ -1,5 +1,6 @@
 # Two entry points for a fresh machine: `make train` and `make test`.
-# Both create .venv when missing and install the package (with dev extras) into it.
+# Both create .venv when missing and install the package (with its dev and all optional extras)
+# into it.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -16,7 +17,7 @@ $(STAMP): pyproject.toml constraints.txt
 	# torch first and pinned (constraints.txt: torch==2.13.0): the CPU wheel; an unpinned torch
 	# would pull GBs of CUDA packages.
 	$(BIN)/pip install -q -c constraints.txt torch
-	$(BIN)/pip install -q -c constraints.txt -e ".[dev]"
+	$(BIN)/pip install -q -c constraints.txt -e ".[dev,all]"
 	touch $(STAMP)
 
 train: $(STAMP)

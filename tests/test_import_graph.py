@@ -17,7 +17,7 @@ KNOWN: set[tuple[str, ...]] = set()
 
 #: the package's top-level parts from the bottom up: a part imports only parts of lower layers
 LAYERS = (
-    ("files", "keys", "suggest", "bootstrap", "builtin", "data_folders"),
+    ("files", "keys", "suggest", "bootstrap", "builtin", "data_folders", "extras"),
     ("plugins", "morphology"),
     ("envs",),
     ("nn",),

@@ -80,6 +80,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ("gcnt.rl.evaluate", ("PolicyMismatchError",)),
         ("gcnt.analysis.runs", ("AnalysisError",)),
         ("gcnt.plugins", ("PluginError",)),
+        ("gcnt.extras", ("MissingExtraError",)),
     ):
         mod = sys.modules.get(module)
         errors += [getattr(mod, n) for n in names if mod is not None and hasattr(mod, n)]

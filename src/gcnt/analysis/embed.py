@@ -175,7 +175,9 @@ def run_embedding(
 
 def tsne(vectors: np.ndarray, seed: int = 0, perplexity: float = 30.0) -> np.ndarray:
     """2-d t-SNE of ``vectors`` (scikit-learn); perplexity capped below the number of points."""
-    from sklearn.manifold import TSNE
+    from gcnt.extras import require
+
+    TSNE = require("sklearn.manifold", "a t-SNE of limb embeddings").TSNE  # noqa: N806 (a class)
 
     n = len(vectors)
     if n < 3:

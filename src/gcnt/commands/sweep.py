@@ -176,6 +176,10 @@ def run(args: argparse.Namespace) -> int:
         run_submitit,
     )
 
+    if args.slurm or args.executor:  # before the sweep directory is written
+        from gcnt.extras import require
+
+        require("submitit", f"gcnt sweep --executor {args.executor or 'slurm'}")
     recipes, overrides = _split_items(args.items)
     try:
         if len(recipes) == 1 and Path(recipes[0]).is_dir():

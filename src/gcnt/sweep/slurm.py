@@ -212,7 +212,9 @@ def run_submitit(
     """Submit every unfinished run that no job has (queued, running or requeued ones are left
     alone) as one submitit job array; with ``wait``, follow the runs' states until none is
     active. The executor and its options are stored in the manifest."""
-    import submitit
+    from gcnt.extras import require
+
+    submitit = require("submitit", f"gcnt sweep --executor {opts.executor}")
 
     manifest.meta["cluster"] = asdict(opts)
     manifest.refresh()
