@@ -227,3 +227,19 @@ def test_per_seed_rows_hold_every_runs_own_points_and_episode_lengths(tmp_path: 
     ]  # fmt: skip
     assert rows[4]["train_return/mean"] == "13.0" and rows[5]["train_length/mean"] == "101.0"
     assert rows[0]["train_length/mean"] == "" and rows[0]["method"] == "gcnt"
+
+
+def test_the_mean_episode_length_stands_beside_the_return(tmp_path: Path, capsys) -> None:
+    """``gcnt curves`` of the exploring return gives each point the seeds' mean episode length
+    (logged with it), in its CSV and on its summary line; empty where none was logged."""
+    for seed in (0, 1):
+        path = make_run(tmp_path, "gcnt", seed, [600, 1200], lambda s, k=seed: s / 100 + k)
+        RunDir(path).log_metrics({"env_steps": 1800, "train_return/mean": 30.0 + seed,
+                                  "train_length/mean": 100.0 + 2 * seed})  # fmt: skip
+    capsys.readouterr()
+    assert main(["curves", str(tmp_path)]) == 0
+    assert (
+        "at      1800 steps: 30.5 ± 0.5 (1 s.e.), episodes of 101 steps" in capsys.readouterr().out
+    )
+    rows = read_csv(tmp_path / "figures" / "curves.csv")
+    assert [r["length_mean"] for r in rows] == ["", "", "101.0"]

@@ -43,7 +43,9 @@ from gcnt.files import write_text
 
 log = logging.getLogger(__name__)
 
-CSV_FIELDS = ("task", "method", "env_steps", "mean", "stderr", "seeds", "robots", "logged")
+CSV_FIELDS = (
+    "task", "method", "env_steps", "mean", "stderr", "seeds", "robots", "logged", "length_mean",
+)  # fmt: skip
 #: the ``--metric`` of the training evaluations' return (``eval/ROBOT``: one robot's)
 EVAL_METRIC = "eval"
 
@@ -234,7 +236,23 @@ def learning_curves(
             f"no run has the metric {metric!r} in its {where} "
             f"({', '.join(str(r.path) for r in runs[:3])}{', ...' if len(runs) > 3 else ''})"
         )
+    if metric in LENGTH_OF:
+        _join_lengths(rows, runs, LENGTH_OF[metric], points, smooth)
     return rows
+
+
+def _join_lengths(
+    rows: list[dict], runs: Sequence[Run], length: str, points: int | None, smooth: int
+) -> None:
+    """Each row's mean episode length (``length_mean``: the mean over seeds of ``length``, the
+    length metric logged with the return), where the runs logged it at that step."""
+    try:
+        found = learning_curves(runs, length, points, smooth)
+    except AnalysisError:  # runs from before lengths were logged
+        return
+    at = {(r["task"], r["method"], r["env_steps"]): r["mean"] for r in found}
+    for row in rows:
+        row["length_mean"] = at.get((row["task"], row["method"], row["env_steps"]))
 
 
 def metric_label(runs: Sequence[Run], metric: str) -> str:

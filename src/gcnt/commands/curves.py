@@ -82,9 +82,11 @@ def run(args: argparse.Namespace) -> int:
         last = [r for r in rows if r["task"] == task and r["method"] == method][-1]
         se = f" ± {last['stderr']:.1f} (1 s.e.)" if last["stderr"] == last["stderr"] else ""
         per = f" x {robots} robots" if robots > 1 else ""
+        length = last.get("length_mean")
+        length = f", episodes of {length:.0f} steps" if length is not None else ""
         print(
             f"{task:<12} {method:<14} seeds {seeds}{per}  at {last['env_steps']:>9} steps: "
-            f"{last['mean']:.1f}{se}"
+            f"{last['mean']:.1f}{se}{length}"
         )
     written = [*style.outputs(out / f"{args.name}.png"), csv]
     if args.per_seed:
