@@ -478,3 +478,20 @@ def test_an_alias_bomb_in_a_received_runs_recipe_is_one_line_at_once(tmp_path, c
         assert time.monotonic() - t0 < 30
     with pytest.raises(Exception, match="aliases expand"):
         gcnt.load_run(run)
+
+
+def test_the_analysis_commands_and_the_api_read_robots_from_the_record(tmp_path, monkeypatch):
+    """``gcnt curves``, ``gcnt zeroshot`` and ``gcnt.load_run`` read a run's robots from its
+    record (no robot looked up); ``gcnt.load_policy`` builds the policy's robots, each looked up
+    once."""
+    recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4", "walker_3_main"])
+    run = tmp_path / "run"
+    assert gcnt_main(["train", str(recipe), f"run_dir={run}"]) == 0
+    _, lookups = _count_lookups(monkeypatch)
+    for argv in (["curves", str(run)], ["zeroshot", str(run)]):
+        assert gcnt_main([*argv, "--out", str(tmp_path / argv[0])]) == 0
+        assert lookups == [], argv
+    gcnt.load_run(run)
+    assert lookups == []
+    gcnt.load_policy(run)
+    assert sorted(lookups) == ["hopper_3", "hopper_4", "walker_3_main"]
