@@ -106,6 +106,33 @@ def test_settings_that_do_not_change_the_experiment_keep_the_same_fingerprint(tm
         assert Run(fake_run(tmp_path / name, **change)).fingerprint != base.fingerprint, name
 
 
+def test_seeds_trained_with_different_plugins_are_pooled_with_one_warning(tmp_path, caplog):
+    """Plugins are not part of an experiment (a plugin cannot replace a built-in method), but
+    seeds trained with other plugins, or with another version of a plugin method's code, are not
+    pooled without a word: one warning per group names each seed's plugins."""
+
+    def plugins(name: str, sha: str) -> dict:
+        return {"resolved": {"plugins": [{"name": name, "sha256": sha * 64}]}}
+
+    fake_run(tmp_path / "gcnt" / "seed0", 0)
+    fake_run(tmp_path / "gcnt" / "seed1", 1, **plugins("extra.py", "a"))
+    mine = {"network": {"name": "meanmsg"}}
+    fake_run(tmp_path / "mine" / "seed0", 0, **mine, **plugins("meanmsg.py", "0"))
+    fake_run(tmp_path / "mine" / "seed1", 1, **mine, **plugins("meanmsg.py", "1"))
+    fake_run(tmp_path / "mine" / "seed2", 2, **mine, **plugins("meanmsg.py", "0"))
+    fake_run(tmp_path / "same" / "seed0", 0, network={"name": "swat"}, **plugins("x.py", "b"))
+    fake_run(tmp_path / "same" / "seed1", 1, network={"name": "swat"}, **plugins("x.py", "b"))
+    with caplog.at_level(logging.WARNING, logger="gcnt.analysis.groups"):
+        groups = comparable_groups(find_runs([tmp_path]))
+    assert [(g.label, len(g.runs)) for g in groups] == [("gcnt", 2), ("swat", 2), ("meanmsg", 3)]
+    said = [m for m in caplog.messages if "trained with different plugins" in m]
+    assert len(said) == 2, caplog.messages
+    gcnt, mine = said
+    assert gcnt.startswith("Walker++ gcnt:")
+    assert "seed 0: no plugin; seed 1: extra.py sha256 aaaaaaaaaaaaaaaa)" in gcnt
+    assert "seeds 0, 2: meanmsg.py sha256 0000" in mine and "seed 1: meanmsg.py sha256 1111" in mine
+
+
 def test_per_robot_runs_are_one_experiment_whatever_their_robot(tmp_path):
     a = Run(fake_run(tmp_path / "a", env={"robots": ["walker_2_main"], "test_robots": []}))
     b = Run(fake_run(tmp_path / "b", env={"robots": ["walker_4_main"], "test_robots": []}))

@@ -101,3 +101,38 @@ def test_a_link_out_of_the_run_directory_is_refused_before_any_work(
         line = error_line(capsys, argv)
         assert f"{target}: a link out of the run directory" in line, line
     assert {p: p.stat().st_mtime_ns for p in victim.rglob("*") if p.is_file()} == before
+
+
+def test_a_run_recipes_compile_cache_dir_is_never_used(trained, tmp_path, monkeypatch, caplog):
+    """torch's compile cache holds code that torch loads and runs: the folder a received run's
+    recipe names (``compile.cache_dir``) is neither made nor used when the run is resumed or
+    loaded (one info line); a folder given on the command line is."""
+    import logging
+    import os
+
+    import torch
+
+    from gcnt.api import load_policy
+    from gcnt.cli import main as gcnt
+    from gcnt.run.directory import RunDir
+
+    run = _copy(trained, tmp_path)
+    planted = tmp_path / "planted"
+    _edit_recipe(run, lambda d: d["compile"].update(compile=True, cache_dir=str(planted)))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
+    monkeypatch.setattr(torch, "compile", lambda fn, **kw: fn)  # where it caches, not compiling
+    with caplog.at_level(logging.INFO, logger="gcnt"):
+        assert RunDir(run).load_recipe(anywhere=True).compile.cache_dir is None
+    assert f"its compile.cache_dir ({planted}) is not used" in caplog.text
+    mine = RunDir(run).load_recipe([f"compile.cache_dir={tmp_path / 'mine'}"])
+    assert mine.compile.cache_dir == str(tmp_path / "mine")  # the command's own: used
+
+    steps = RunDir(run).load_checkpoint()["env_steps"]
+    assert gcnt(["train", "--resume", str(run), f"collector.total_frames={steps + 20}"]) == 0
+    assert RunDir(run).load_checkpoint()["env_steps"] > steps
+    assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == str((tmp_path / "xdg/gcnt/inductor").resolve())
+    assert yaml.safe_load((run / "recipe.yaml").read_text())["compile"]["cache_dir"] is None
+    _edit_recipe(run, lambda d: d["compile"].update(cache_dir=str(planted)))
+    load_policy(run)
+    assert not planted.exists()

@@ -1,7 +1,8 @@
 """Links, FIFOs and devices put where gcnt writes (a run's lock and temporary files, a figure's
 caption, a sweep's lock and logs, a morphologies folder's import lock, the ``--json`` a user
 names): gcnt never writes through them or replaces them; a refusal is one line naming the
-file, and what a link points to keeps its content."""
+file, and what a link points to keeps its content. A lock or log that is a hard link (another
+name of someone else's file) is refused as well: gcnt writes into those files themselves."""
 
 from __future__ import annotations
 
@@ -41,6 +42,17 @@ def _copy(trained: Path, tmp_path: Path) -> Path:
     return run
 
 
+def _make(path: Path, kind: str, victim: Path) -> None:
+    """At ``path``: a symbolic link to ``victim`` (``link``), another name of it
+    (``hardlink``), or a FIFO."""
+    if kind == "link":
+        path.symlink_to(victim)
+    elif kind == "hardlink":
+        path.hardlink_to(victim)
+    else:
+        os.mkfifo(path)
+
+
 # --- the writer itself
 
 
@@ -73,7 +85,7 @@ def test_a_write_replaces_a_regular_file_and_leaves_no_temporary_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["outside", "recipe.tmp", "recipe.yaml"]
 
 
-@pytest.mark.parametrize("kind", ["link", "fifo", "devnull"])
+@pytest.mark.parametrize("kind", ["link", "fifo", "devnull", "hardlink"])
 def test_a_lock_or_log_that_is_not_a_regular_file_is_refused_untouched(tmp_path, kind):
     victim = _victim(tmp_path)
     path = tmp_path / ".lock"
@@ -81,9 +93,12 @@ def test_a_lock_or_log_that_is_not_a_regular_file_is_refused_untouched(tmp_path,
         path.symlink_to(victim)
     elif kind == "fifo":
         os.mkfifo(path)
+    elif kind == "hardlink":
+        path.hardlink_to(victim)
     else:
         path.symlink_to("/dev/null")
-    with pytest.raises(NotRegularFileError, match=r"\.lock: a (symbolic link|FIFO)"):
+    said = r"\.lock: a (symbolic link|FIFO|hard link \(a file with 2 names\))"
+    with pytest.raises(NotRegularFileError, match=said):
         open_lock(path)
     with pytest.raises(NotRegularFileError):
         append_text(path, "a line\n")
@@ -122,7 +137,7 @@ def test_an_output_the_user_names_is_written_into_a_device_never_replaced(tmp_pa
 # --- runs
 
 
-@pytest.mark.parametrize("kind", ["link", "fifo", "devnull"])
+@pytest.mark.parametrize("kind", ["link", "fifo", "devnull", "hardlink"])
 def test_a_lock_file_that_is_not_regular_is_one_line_and_empties_nothing(
     trained, tmp_path, capsys, kind
 ):
@@ -134,6 +149,8 @@ def test_a_lock_file_that_is_not_regular_is_one_line_and_empties_nothing(
         lock.symlink_to(victim)
     elif kind == "fifo":
         os.mkfifo(lock)
+    elif kind == "hardlink":  # the holder record would be written into the victim
+        lock.hardlink_to(victim)
     else:
         lock.symlink_to("/dev/null")
     line = error_line(capsys, ["train", "--resume", str(run), "collector.total_frames=60"])
@@ -220,12 +237,12 @@ def _sweep_in_a_process(sw: Path) -> subprocess.CompletedProcess:
     )
 
 
-@pytest.mark.parametrize("kind", ["link", "fifo"])
+@pytest.mark.parametrize("kind", ["link", "fifo"])  # (it is replaced, never written into)
 def test_a_sweep_lock_that_is_not_a_regular_file_is_one_line(tmp_path, kind):
     sw = _dry_sweep(tmp_path)
     victim = _victim(tmp_path)
     lock = sw / ".sweep.lock"
-    lock.symlink_to(victim) if kind == "link" else os.mkfifo(lock)
+    _make(lock, kind, victim)
     out = _sweep_in_a_process(sw)
     assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr[-2000:]
     assert f"{lock}: a " in out.stderr, out.stderr
@@ -247,13 +264,13 @@ def test_a_fifo_as_a_run_log_is_one_line_before_any_run_starts(tmp_path):
     assert not Path(spec.run_dir).exists()
 
 
-@pytest.mark.parametrize("kind", ["link", "fifo"])
+@pytest.mark.parametrize("kind", ["link", "fifo", "hardlink"])
 def test_an_import_lock_that_is_not_a_regular_file_is_one_line(tmp_path, capsys, kind):
     victim = _victim(tmp_path)
     morph = tmp_path / "morph"
     morph.mkdir()
     lock = morph / ".import.lock"
-    lock.symlink_to(victim) if kind == "link" else os.mkfifo(lock)
+    _make(lock, kind, victim)
     line = error_line(capsys, ["import-unimal", str(tmp_path / "nowhere"), "--out", str(morph)])
     assert f"{lock}: a " in line and "import lock" in line, line
     assert victim.read_text() == VICTIM_TEXT

@@ -182,7 +182,54 @@ def _workers(proc: subprocess.Popen) -> list[int]:
     children = subprocess.run(
         ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
     ).stdout.split()
-    return [int(c) for c in children if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
+    out = []
+    for c in children:
+        try:
+            if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text():
+                out.append(int(c))
+        except OSError:  # gone meanwhile
+            continue
+    return out
+
+
+@pytest.mark.slow
+def test_a_worker_killed_the_moment_it_exists_ends_the_run_in_one_line(tmp_path: Path):
+    """Killed as soon as its process exists, before it read its start-up data (with four UNIMAL
+    robots 87 KiB, more than the pipe they are written into holds), a worker left
+    multiprocessing's launch of it waiting forever: the run stayed alive without a line. The
+    start-up watch ends it in one line within seconds."""
+    import os
+    import time
+
+    d = tiny_recipe(tmp_path / "unused", "unimal", collector="multi", workers=2).to_dict()
+    d.pop("run_dir", None)
+    d["env"]["robots"] = [f"unimal_000{i}" for i in range(4)]
+    path = tmp_path / "multi.yaml"
+    path.write_text(yaml.safe_dump(d))
+    run = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcnt.cli", "train", str(path), f"run_dir={run}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not (workers := _workers(proc)):  # the first worker's process exists
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no worker started"
+        os.kill(workers[0], signal.SIGKILL)
+        killed = time.monotonic()
+        _, stderr = proc.communicate(timeout=120)
+        took = time.monotonic() - killed
+    finally:
+        proc.kill()
+    lines = [x for x in stderr.splitlines() if x.startswith("gcnt train: error:")]
+    assert proc.returncode == 2 and "Traceback" not in stderr, stderr[-3000:]
+    assert len(lines) == 1 and "collector worker 0 ended (killed by SIGKILL)" in lines[0], lines
+    assert "while starting up" in lines[0] and "run the same command again" in lines[0]
+    assert took < 30, took  # about 3 s on 2 cores
+    assert not run.exists()  # nothing of value was made
 
 
 @pytest.mark.slow

@@ -215,6 +215,21 @@ class NotRegularFileError(FileExistsError):
         )
 
 
+class HardLinkError(NotRegularFileError):
+    """A file with other names (a hard link: ``st_nlink`` > 1) where gcnt would write into
+    the file itself (a lock, a log): writing would change the file under its other names too,
+    wherever they are. It is neither written nor replaced."""
+
+    def __init__(self, path: str | Path, names: int):
+        super().__init__(path, f"a hard link (a file with {names} names)")
+
+    def __str__(self) -> str:
+        return (
+            f"{self.filename}: {self.kind}; gcnt does not write into a file that has other "
+            "names, which would change them too (remove it, or give another path)"
+        )
+
+
 def _kind(mode: int) -> str:
     if stat.S_ISLNK(mode):
         return "a symbolic link"
@@ -339,7 +354,9 @@ def rename(src: str | Path, dst: str | Path) -> None:
 
 def _open_existing_or_new(path: str | Path, flags: int) -> int:
     """A descriptor of the regular file ``path`` (created if absent), opened with ``flags``
-    without following a link or waiting on a FIFO; else a :class:`NotRegularFileError`."""
+    without following a link or waiting on a FIFO; else a :class:`NotRegularFileError` (a
+    :class:`HardLinkError` for a file with other names: what is written into it, they get
+    too)."""
     try:
         fd = os.open(path, flags | os.O_CREAT | _OPEN, 0o666)
     except OSError as e:
@@ -350,14 +367,17 @@ def _open_existing_or_new(path: str | Path, flags: int) -> int:
     if not stat.S_ISREG(st.st_mode):
         os.close(fd)
         raise NotRegularFileError(path, _kind(st.st_mode))
+    if st.st_nlink > 1:
+        os.close(fd)
+        raise HardLinkError(path, st.st_nlink)
     os.set_blocking(fd, True)
     return fd
 
 
 def open_lock(path: str | Path) -> int:
     """A read-write descriptor of the lock file ``path`` (created if absent), which must be a
-    regular file: a link, a FIFO or a device is a :class:`NotRegularFileError`, nothing is
-    opened through it or truncated."""
+    regular file of its own: a link, a FIFO, a device or a file with other names (a hard link)
+    is a :class:`NotRegularFileError`, nothing is opened through it or truncated."""
     return _open_existing_or_new(path, os.O_RDWR)
 
 

@@ -149,7 +149,9 @@ class CompileConfig:
     #: eager calls before a step is captured in a CUDA graph
     warmup: int = 2
     #: where torch.compile caches compiled code; null: $TORCHINDUCTOR_CACHE_DIR if set, else
-    #: $XDG_CACHE_HOME/gcnt/inductor (~/.cache/gcnt/inductor), never the shared /tmp
+    #: $XDG_CACHE_HOME/gcnt/inductor (~/.cache/gcnt/inductor), never the shared /tmp. A run's
+    #: recorded cache_dir is not used when it is resumed or loaded (the cache holds code torch
+    #: runs): give it again on the command line (compile.cache_dir=...)
     cache_dir: str | None = None
     #: torch's intra-op (OpenMP) threads for the run; null (default): torch's own, one per core.
     #: On a machine shared with other jobs, 1 keeps every small kernel from waiting for a thread
@@ -769,7 +771,10 @@ def recorded_recipe(
 ) -> Recipe:
     """The recipe a run recorded (``recorded``, read from ``path``) with ``overrides``, to go on
     with on this machine (:func:`gcnt.run.record.load_run_recipe`: the device and CUDA-only
-    switches as it describes)."""
+    switches as it describes). A recorded ``compile.cache_dir`` is not used (one info line):
+    the run may come from someone else, and torch's compile cache holds code that it loads and
+    runs, so compiled code is cached where this command says (a ``compile.cache_dir`` override,
+    else the user's own cache: :func:`gcnt.rl.accelerate.inductor_cache_dir`)."""
     data = _as_recorded(recorded)
     overrides = list(overrides or [])
     given = {o.split("=", 1)[0].strip() for o in overrides if "=" in o}
@@ -785,6 +790,14 @@ def recorded_recipe(
         overrides.append("device=cpu")
         device = "cpu"
     switches = effective.get("compile") if isinstance(effective.get("compile"), dict) else {}
+    if switches.get("cache_dir") is not None and not given & {"compile", "compile.cache_dir"}:
+        log.info(
+            "%s: its compile.cache_dir (%s) is not used: compiled code is cached where this "
+            "command says (compile.cache_dir=..., else the user's cache)",
+            path,
+            switches["cache_dir"],
+        )
+        overrides.append("compile.cache_dir=null")
     dropped = [
         key
         for key in CompileConfig.CUDA_ONLY

@@ -10,7 +10,10 @@ by the values of the keys that tell them apart (``gcnt [collector.total_frames=2
 warning naming those keys and their values (``collector.total_frames: 24000 vs 12000``). Two
 runs of one seed in one group (a run made twice) are refused, naming both: a seed counts once.
 The per-robot runs of one seed (``gcnt sweep --per-robot``) are one seed of their group, each
-robot counted once.
+robot counted once. The plugins a run was trained with are not part of its experiment (a plugin
+cannot replace a built-in method): seeds of one group trained with different plugins, or with
+other versions of one (another sha256: a plugin method's code changed between seeds), are pooled
+with a warning naming each seed's plugins.
 """
 
 from __future__ import annotations
@@ -61,6 +64,7 @@ def comparable_groups(runs: Sequence[Run]) -> list[RunGroup]:
             members.sort(key=lambda r: (r.seed, r.single_robot or "", str(r.path)))
             label = names.get(fingerprint, method)
             _check_seeds(task, label, members)
+            _warn_plugins(task, label, members)
             groups.append(RunGroup(task, method, label, tuple(members), fingerprint))
             sources = list(dict.fromkeys(s for r in members if (s := r.fine_tune_of)))
             if sources:
@@ -118,6 +122,27 @@ def _check_seeds(task: str, label: str, members: Sequence[Run]) -> None:
                 "instead of their folder, or move one of them out of it"
             )
         seen[key] = r
+
+
+def _warn_plugins(task: str, label: str, members: Sequence[Run]) -> None:
+    """One warning where the seeds of one group were trained with different plugins."""
+    seeds: dict[tuple[str, ...], list[int]] = {}
+    for r in members:
+        got = seeds.setdefault(r.plugins, [])
+        if r.seed not in got:
+            got.append(r.seed)
+    if len(seeds) < 2:
+        return
+    told = "; ".join(
+        f"seed{'s' if len(s) > 1 else ''} {', '.join(map(str, s))}: "
+        f"{', '.join(plugins) if plugins else 'no plugin'}"
+        for plugins, s in seeds.items()
+    )
+    log.warning(
+        "%s %s: its seeds were trained with different plugins (%s); pooled, as plugins are not "
+        "part of an experiment (plot them in separate commands where that changed the method)",
+        task, label, told,
+    )  # fmt: skip
 
 
 #: the value of a key a recipe does not have

@@ -67,12 +67,27 @@ class WorkerDiedError(RuntimeError):
     the last checkpoint is kept and the run resumes from it."""
 
 
-def _dead_worker(collector: Any, run: RunDir) -> WorkerDiedError | None:
-    """The error to report when one of ``collector``'s worker processes has ended (None: all
-    live, or the collector has no workers)."""
-    for i, proc in enumerate(getattr(collector, "procs", None) or []):
+def _worker_procs(collector: Any, launching: Any = None) -> list[Any]:
+    """``collector``'s worker processes (``multiprocessing.Process``), then ``launching``: the
+    ``Popen`` of a worker that the collector is starting now (not among them yet)."""
+    procs = list(getattr(collector, "procs", None) or [])
+    return procs + ([launching] if launching is not None else [])
+
+
+def _exit_code(proc: Any) -> int | None:
+    """How a worker process ended (None: it runs); a Process, or the Popen of one being
+    started (reaped here: no Process will own it once its start fails)."""
+    if hasattr(proc, "exitcode"):
+        return proc.exitcode
+    return proc.poll()
+
+
+def _dead_worker(collector: Any, run: RunDir, launching: Any = None) -> WorkerDiedError | None:
+    """The error to report when one of ``collector``'s worker processes (or ``launching``, one
+    it is starting) has ended (None: all live, or the collector has no workers)."""
+    for i, proc in enumerate(_worker_procs(collector, launching)):
         try:
-            code = proc.exitcode
+            code = _exit_code(proc)
         except ValueError:  # closed by the collector as it stopped the others
             continue
         if code is None or code == 0:
@@ -123,10 +138,11 @@ class Waiting:
         self.on = False
 
 
-def _stopped_workers(collector: Any) -> list[int]:
-    """The indices of ``collector``'s worker processes that are stopped (state ``T``)."""
+def _stopped_workers(collector: Any, launching: Any = None) -> list[int]:
+    """The indices of ``collector``'s worker processes (and ``launching``'s, see
+    :func:`_worker_procs`) that are stopped (state ``T``)."""
     out = []
-    for i, proc in enumerate(getattr(collector, "procs", None) or []):
+    for i, proc in enumerate(_worker_procs(collector, launching)):
         try:
             text = read_text(f"/proc/{proc.pid}/stat", 4 * KiB, "a worker's state", OSError)
         except (OSError, ValueError, TypeError):
@@ -138,14 +154,22 @@ def _stopped_workers(collector: Any) -> list[int]:
 
 
 @contextlib.contextmanager
-def worker_watch(collector: Any, run: RunDir, every: float = 1.0, waiting: Waiting | None = None):
+def worker_watch(
+    collector: Any, run: RunDir, every: float = 1.0, waiting: Waiting | None = None
+) -> Iterator[None]:
     """While the block runs, check ``collector``'s worker processes every ``every`` seconds (a
     SIGALRM timer, which also interrupts a wait inside the collector) and raise the
     :class:`WorkerDiedError` of one that ended there, or that has been stopped (SIGSTOP) for
     :data:`STOPPED_WORKER_S`, wherever the main thread waits for it (its batch, or its
     acknowledgement of new weights). A stop requested while the main thread waits (per
     ``waiting``) for a stopped worker, or for :data:`STOP_WAIT_S`, raises
-    :class:`StopWhileWaiting`. Only in the main thread."""
+    :class:`StopWhileWaiting`. Only in the main thread.
+
+    ``collector`` None: the block builds the collector (:func:`start_collector`); its workers
+    are found in the main thread's frames as they start (:func:`_building`), the one being
+    launched included, whose launch would otherwise wait forever for a worker killed before
+    it read its start-up data. A worker being launched when the block fails is ended here: no
+    collector owns it."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
@@ -153,11 +177,16 @@ def worker_watch(collector: Any, run: RunDir, every: float = 1.0, waiting: Waiti
         return
     stopped_since: dict[int, float] = {}
     stop_seen: list[float] = []
+    raised: list[WorkerDiedError] = []  # once found, the same error at every tick
+    launched: list[Any] = []  # the Popen of each worker seen being launched
 
     def check(signum, frame):
         now = time.monotonic()
-        dead = _dead_worker(collector, run)
-        stopped = _stopped_workers(collector)
+        target, launching = (collector, None) if collector is not None else _building(frame)
+        if launching is not None and all(p is not launching for p in launched):
+            launched.append(launching)
+        dead = raised[0] if raised else _dead_worker(target, run, launching)
+        stopped = _stopped_workers(target, launching)
         for i in list(stopped_since):
             if i not in stopped:
                 del stopped_since[i]
@@ -170,9 +199,11 @@ def worker_watch(collector: Any, run: RunDir, every: float = 1.0, waiting: Waiti
                     f"gcnt train --resume {run.path}"
                 )
         # The timer stays armed after a raise: code the main thread is in may catch and log the
-        # error (torchrl's wait for a worker's acknowledgement catches every Exception), so it
-        # is raised again at every tick until it leaves the block (whose exit disarms the timer)
+        # error (torchrl's wait for a worker's acknowledgement catches every Exception, its
+        # constructor's clean-up waits for the workers), so it is raised again at every tick
+        # until it leaves the block (whose exit disarms the timer)
         if dead is not None:
+            raised[:1] = [dead]
             raise dead
         if stop.requested() and waiting is not None and waiting.on:
             stop_seen.append(now)
@@ -183,9 +214,36 @@ def worker_watch(collector: Any, run: RunDir, every: float = 1.0, waiting: Waiti
     signal.setitimer(signal.ITIMER_REAL, every, every)
     try:
         yield
+    except BaseException:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        for popen in launched:  # started by a launch that failed: no collector ends it
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                if popen.poll() is None:
+                    popen.kill()
+                    popen.wait(10)
+        raise
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+
+
+def _building(frame: Any) -> tuple[Any, Any]:
+    """From the main thread's ``frame`` up: the multi-process collector being built there
+    (None: none), and the ``Popen`` of the worker process it is launching (None: none, or its
+    pid is not known yet)."""
+    from multiprocessing.popen_fork import Popen
+
+    collector = launching = None
+    # no error of its own may leave the handler: torchrl's worker start swallows a TypeError
+    with contextlib.suppress(Exception):
+        while frame is not None:
+            me = frame.f_locals.get("self")
+            if isinstance(me, MultiSyncCollector) and collector is None:
+                collector = me  # (its truth value is its length, undefined while it is built)
+            elif frame.f_code.co_name == "_launch" and isinstance(me, Popen):
+                launching = me if getattr(me, "pid", None) else None
+            frame = frame.f_back
+    return collector, launching
 
 
 def _end_workers(collector: Any) -> None:
@@ -545,26 +603,28 @@ def follow_algorithm(collector, settings: CollectSettings, algo: Algorithm, env_
 
 
 def start_collector(recipe: Recipe, env: EnvBase, settings: CollectSettings, run: RunDir):
-    """:func:`make_collector`; a worker process that dies while the collector starts (it
-    waits for each worker's word that its envs are built) is a :class:`WorkerDiedError`, not
-    torchrl's traceback. The half-built collector is ended here, its workers and its weight
-    channels, while new threads can still start: left to the garbage collector at exit, its
-    channels' clean-up would wait forever for a thread that can no longer start."""
+    """:func:`make_collector`; a worker process that dies while the collector starts, at any
+    moment (watched by :func:`worker_watch`: torchrl waits for each worker's word that its envs
+    are built, and multiprocessing's launch of a worker waits for it to read its start-up
+    data), is a :class:`WorkerDiedError`, not torchrl's traceback or a wait without end. The
+    half-built collector is ended here, its workers and its weight channels, while new threads
+    can still start: left to the garbage collector at exit, its channels' clean-up would wait
+    forever for a thread that can no longer start."""
     if settings.env_makers is None:
         return make_collector(recipe, env, settings)
     try:
-        return make_collector(recipe, env, settings)
+        with worker_watch(None, run):
+            return make_collector(recipe, env, settings)
     except Exception as e:  # noqa: BLE001 - which worker failed, and how, is said below
         half_built = _collector_in(e.__traceback__)
         detail = str(e).splitlines()[0] if str(e) else type(e).__name__
+        dead = e if isinstance(e, WorkerDiedError) else None
     if half_built is not None:
         _end_workers(half_built)
         for scheme in (getattr(half_built, "_weight_sync_schemes", None) or {}).values():
             with contextlib.suppress(Exception):
                 scheme.shutdown()
-        dead = _dead_worker(half_built, run)
-    else:
-        dead = None
+        dead = dead or _dead_worker(half_built, run)
     del half_built
     import gc
 

@@ -470,6 +470,22 @@ class Run:
         section = self.recipe.get("resolved")
         return RunRecord.from_resolved(section) if isinstance(section, dict) else None
 
+    @cached_property
+    def plugins(self) -> tuple[str, ...]:
+        """The plugins the run was trained with, as it recorded them (``resolved.plugins``, or
+        an older run's ``plugins:`` list): each one's name and the start of its sha256
+        (``my_methods.py sha256 0123456789abcdef``), sorted; never imported."""
+        from gcnt.plugins import recorded_identity
+        from gcnt.run.record import recorded_plugins
+
+        shown = set()
+        for entry in recorded_plugins(self.recipe):
+            ident = recorded_identity(entry)
+            if ident is not None:
+                sha = ident["sha256"]
+                shown.add(f"{ident['name']} sha256 {sha[:16]}" if sha else ident["name"])
+        return tuple(sorted(shown))
+
     @property
     def fine_tune_of(self) -> str | None:
         """Where a fine-tuned run started (``init_from``): ``<task> run <path>`` from the
