@@ -123,7 +123,7 @@ def test_curves_command_writes_png_and_csv(sweep: Path, capsys) -> None:
     png, csv = sweep / "figures" / "curves.png", sweep / "figures" / "curves.csv"
     assert png.stat().st_size > 1000 and png.read_bytes()[:4] == b"\x89PNG"
     lines = csv.read_text().splitlines()
-    assert lines[0] == "task,method,env_steps,mean,stderr,seeds,robots,logged"
+    assert lines[0] == "task,method,env_steps,mean,stderr,seeds,robots,logged,length_mean"
     assert len(lines) == 1 + 3 * 5
     assert main(["curves", str(sweep), "--metric", "nope"]) == 2
 

@@ -292,6 +292,6 @@ def test_curves_command_on_two_directories(sr_and_universal, tmp_path: Path, cap
     text = capsys.readouterr().out
     assert "SR-fair" in text and "seeds 2 x 3 robots" in text
     lines = (out / "curves.csv").read_text().splitlines()
-    assert lines[0] == "task,method,env_steps,mean,stderr,seeds,robots,logged"
-    assert lines[-1].startswith("quickstart,SR-fair,3000,36.0") and lines[-1].endswith(",2,3,1")
+    assert lines[0] == "task,method,env_steps,mean,stderr,seeds,robots,logged,length_mean"
+    assert lines[-1].startswith("quickstart,SR-fair,3000,36.0") and lines[-1].endswith(",2,3,1,")
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
