@@ -87,3 +87,24 @@ def test_an_offline_wandb_run_has_one_row_per_log_step_the_video_and_the_summary
         assert env["benchmark"] == "smpenv" and env["robots"] == ["hopper_3"]
     saved = {f["path"] for r in records if r["type"] == "files" for f in r["files"]["files"]}
     assert {"recipe.yaml", "provenance.json"} <= saved
+
+
+@pytest.mark.slow
+def test_the_wandb_video_shows_every_training_robot(tmp_path: Path, recipe_file: Path, monkeypatch):
+    """Three training robots: the evaluation video W&B holds tiles them in a 2 x 2 grid, each
+    tile a scene, the fourth black."""
+    imageio = pytest.importorskip("imageio.v2")
+    monkeypatch.setenv("WANDB_CONFIG_DIR", str(tmp_path / "wandb-config"))
+    run = tmp_path / "run"
+    argv = ["train", str(recipe_file), f"run_dir={run}", "logger.backend=wandb",
+            "env.robots=[hopper_3, hopper_5, walker_2_main]", "eval.video=true",
+            "collector.total_frames=90"]  # fmt: skip
+    assert main(argv) == 0
+    history = [r["history"]["item"] for r in _records(run) if r["type"] == "history"]
+    (path,) = {h["eval_video.path"] for h in history if "eval_video.path" in h}
+    folder = next((run / "wandb").glob("offline-run-*"))
+    reader = imageio.get_reader(str(folder / "files" / path))
+    frame = reader.get_data(0)
+    h, w = frame.shape[0] // 2, frame.shape[1] // 2
+    tiles = [frame[r : r + h, c : c + w] for r in (0, h) for c in (0, w)]
+    assert all(t.std() > 0 for t in tiles[:3]) and tiles[3].max() <= 16
