@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from render_helpers import gl_or_skip, no_gl
 
 from gcnt.morphology.catalogues import smpenv_robot
 
@@ -72,10 +73,6 @@ def test_bench_env_unknown_benchmark():
 # ------------------------------------------------------------------ what a video shows
 
 
-def _no_gl(e: Exception) -> bool:
-    return "EGL" in repr(e) or "OpenGL" in repr(e) or "gl" in type(e).__name__.lower()
-
-
 def _first_frame(bench: str, name: str, **kw):
     """(RGB frame, segmentation, model) of the video camera at the start of an episode of
     robot ``name``, at 160 x 120."""
@@ -89,7 +86,7 @@ def _first_frame(bench: str, name: str, **kw):
         filming = Filming(env, 0, width=160, height=120)
     except Exception as e:
         env.close()
-        if _no_gl(e):
+        if no_gl(e):
             pytest.skip(f"no headless OpenGL: {e!r}")
         raise
     try:
@@ -145,15 +142,9 @@ def test_a_video_is_one_episode_or_the_steps_asked(tmp_path):
     from gcnt.morphology.catalogues import resolve_robots
 
     env = UnimalEnv(resolve_robots(["unimal_0001"]), seed=0, num_threads=1, max_episode_steps=5)
-    try:
+    with gl_or_skip(env):
         whole = render_rollout(env, path=tmp_path / "whole.mp4", width=32, height=32)
         cut = render_rollout(env, steps=3, path=tmp_path / "cut.mp4", width=32, height=32)
-    except Exception as e:
-        if _no_gl(e):
-            pytest.skip(f"no headless OpenGL: {e!r}")
-        raise
-    finally:
-        env.close()
     assert (_frames(whole), _frames(cut)) == (5, 3)
     with pytest.raises(ValueError, match="steps must be >= 1"):
         render_rollout(env, steps=0)
@@ -174,7 +165,7 @@ def test_eval_video_steps(trained, tmp_path, capsys):
     try:
         assert gcnt(argv) == 0
     except Exception as e:
-        if _no_gl(e):
+        if no_gl(e):
             pytest.skip(f"no headless OpenGL: {e!r}")
         raise
     video = run / "videos" / "hopper_3-step40.mp4"
@@ -200,14 +191,8 @@ def test_a_video_of_several_robots_tiles_them_until_every_episode_ends(tmp_path)
 
     robots = resolve_robots(["unimal_0001", "unimal_0002", "unimal_0003"])
     env = UnimalEnv(robots, seed=0, num_threads=1, max_episode_steps=5)
-    try:
+    with gl_or_skip(env):
         path = render_rollout(env, path=tmp_path / "all.mp4", width=64, height=64, index=range(3))
-    except Exception as e:
-        if _no_gl(e):
-            pytest.skip(f"no headless OpenGL: {e!r}")
-        raise
-    finally:
-        env.close()
     frames = [f for f in imageio.get_reader(str(path))]  # noqa: C416 (the reader has no len)
     assert len(frames) == 5 and frames[0].shape == (64, 64, 3)
     tiles = [frames[-1][r : r + 32, c : c + 32] for r in (0, 32) for c in (0, 32)]

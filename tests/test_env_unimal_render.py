@@ -7,12 +7,9 @@ import argparse
 import json
 
 import pytest
+from render_helpers import gl_or_skip, no_gl
 
 from gcnt.morphology.catalogues import resolve_robots
-
-
-def _no_gl(e: Exception) -> bool:
-    return "EGL" in repr(e) or "OpenGL" in repr(e) or "gl" in type(e).__name__.lower()
 
 
 @pytest.mark.parametrize("world", ["mt", "obstacles"])
@@ -23,14 +20,8 @@ def test_render_terrain_world(tmp_path, world):
 
     env = UnimalEnv(resolve_robots(["unimal_0001"]), world=world, seed=0, num_threads=1)
     assert camera_id(env.sim(0)[0], "track") >= 0
-    try:
+    with gl_or_skip(env):
         path = render_rollout(env, steps=6, path=tmp_path / "v.mp4", width=64, height=48)
-    except Exception as e:  # no headless OpenGL on this machine
-        if _no_gl(e):
-            pytest.skip(f"no headless OpenGL: {e!r}")
-        raise
-    finally:
-        env.close()
     frames = [f for f in imageio.get_reader(str(path))]  # noqa: C416 (the reader has no len)
     assert len(frames) == 6 and frames[0].shape == (48, 64, 3)
     assert frames[-1].std() > 0
@@ -49,7 +40,7 @@ def test_render_robot_builds_a_unimal_env(tmp_path):
             height=32,
         )
     except Exception as e:
-        if _no_gl(e):
+        if no_gl(e):
             pytest.skip(f"no headless OpenGL: {e!r}")
         raise
     assert path.stat().st_size > 0

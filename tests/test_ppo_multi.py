@@ -21,13 +21,13 @@ from gcnt.rl.stop import EXIT_STOPPED
 from gcnt.run.directory import RunDir
 
 
-def _endless_run(tmp_path: Path, benchmark: str = "smpenv") -> tuple[subprocess.Popen, Path]:
-    """``gcnt train`` of a tiny multi-collector PPO recipe that runs until stopped, started as a
-    process once it has logged a row; its run directory."""
+def _start(tmp_path: Path, benchmark: str, **edit) -> tuple[subprocess.Popen, Path]:
+    """``gcnt train`` of a tiny multi-collector PPO recipe (``edit``: recipe sections updated),
+    started as a process; its run directory."""
     d = tiny_recipe(tmp_path / "unused", benchmark, collector="multi", workers=2).to_dict()
     d.pop("run_dir", None)
-    d["collector"]["total_frames"] = 10_000_000  # runs until stopped
-    d["checkpoint_interval"] = 10_000_000  # the only checkpoint is the stop's own
+    for key, value in edit.items():
+        d[key] = {**d[key], **value} if isinstance(value, dict) else value
     path = tmp_path / "multi.yaml"
     path.write_text(yaml.safe_dump(d))
     run = tmp_path / "run"
@@ -36,6 +36,18 @@ def _endless_run(tmp_path: Path, benchmark: str = "smpenv") -> tuple[subprocess.
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+    )
+    return proc, run
+
+
+def _endless_run(tmp_path: Path, benchmark: str = "smpenv") -> tuple[subprocess.Popen, Path]:
+    """:func:`_start` of a run that goes on until stopped, once it has logged a row (the only
+    checkpoint is the stop's own)."""
+    proc, run = _start(
+        tmp_path,
+        benchmark,
+        collector={"total_frames": 10_000_000},
+        checkpoint_interval=10_000_000,
     )
     try:
         wait_for_metrics([run / "metrics.jsonl"], proc)
@@ -201,18 +213,7 @@ def test_a_worker_killed_the_moment_it_exists_ends_the_run_in_one_line(tmp_path:
     import os
     import time
 
-    d = tiny_recipe(tmp_path / "unused", "unimal", collector="multi", workers=2).to_dict()
-    d.pop("run_dir", None)
-    d["env"]["robots"] = [f"unimal_000{i}" for i in range(4)]
-    path = tmp_path / "multi.yaml"
-    path.write_text(yaml.safe_dump(d))
-    run = tmp_path / "run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gcnt.cli", "train", str(path), f"run_dir={run}"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc, run = _start(tmp_path, "unimal", env={"robots": [f"unimal_000{i}" for i in range(4)]})
     try:
         deadline = time.monotonic() + 300
         while not (workers := _workers(proc)):  # the first worker's process exists
