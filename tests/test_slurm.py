@@ -213,5 +213,6 @@ def test_a_plugins_method_benchmark_and_algorithm_train_and_evaluate_on_slurm(sl
     (spec,) = _manifest(sw)
     assert spec["state"] == "done" and spec["eval_state"] == {"test": "done"}
     recorded = yaml.safe_load((Path(spec["run_dir"]) / "recipe.yaml").read_text())
-    assert recorded["plugins"] == [str(plugin)] and recorded["network"]["name"] == "plugnet"
+    # recorded by its file's name (never the author's folder): the identity is its sha256
+    assert recorded["plugins"] == [plugin.name] and recorded["network"]["name"] == "plugnet"
     assert list((Path(spec["run_dir"]) / "eval").glob("test-*.json"))
