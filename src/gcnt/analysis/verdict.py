@@ -58,23 +58,55 @@ def detectable(
 def welch(a: Sequence[float], b: Sequence[float], alpha: float = 0.05) -> dict[str, float]:
     """Welch's two-sided t-test of ``a`` against ``b`` (means, standard errors, t, df, p), and
     the power of the seeds for the difference seen and the difference detectable at 80%."""
+    se = [st.stdev(x) / math.sqrt(len(x)) for x in (a, b)]
+    return welch_summary(st.mean(a), se[0], len(a), st.mean(b), se[1], len(b), alpha)
+
+
+def welch_summary(
+    mean_a: float, se_a: float, na: int, mean_b: float, se_b: float, nb: int, alpha: float = 0.05
+) -> dict[str, float]:
+    """:func:`welch` from each method's mean, standard error and number of seeds (what a
+    published ``curves.csv`` holds): Welch's test depends on the seeds only through them."""
     from scipy import stats
 
-    t = stats.ttest_ind(a, b, equal_var=False)
-    sd_a, sd_b = st.stdev(a), st.stdev(b)
-    diff = st.mean(a) - st.mean(b)
+    var = se_a**2 + se_b**2
+    diff = mean_a - mean_b
+    t = diff / math.sqrt(var) if var > 0 else math.copysign(math.inf, diff) if diff else math.nan
+    df = var**2 / (se_a**4 / (na - 1) + se_b**4 / (nb - 1)) if var > 0 else math.nan
+    sd_a, sd_b = se_a * math.sqrt(na), se_b * math.sqrt(nb)
     return {
-        "mean_a": st.mean(a),
-        "se_a": st.stdev(a) / math.sqrt(len(a)),
-        "mean_b": st.mean(b),
-        "se_b": st.stdev(b) / math.sqrt(len(b)),
+        "mean_a": mean_a,
+        "se_a": se_a,
+        "mean_b": mean_b,
+        "se_b": se_b,
         "diff": diff,
-        "t": float(t.statistic),
-        "df": float(t.df),
-        "p": float(t.pvalue),
-        "power_seen": power_for(diff, sd_a, sd_b, len(a), len(b), alpha),
-        "detectable_80": detectable(sd_a, sd_b, len(a), len(b), alpha),
+        "t": float(t),
+        "df": float(df),
+        "p": float(2 * stats.t.sf(abs(t), df)),
+        "power_seen": power_for(diff, sd_a, sd_b, na, nb, alpha),
+        "detectable_80": detectable(sd_a, sd_b, na, nb, alpha),
     }
+
+
+def last_points(curves_csv) -> dict[str, tuple[float, float, int]]:
+    """Each method's (mean, standard error, seeds) at its last step in a ``gcnt curves`` CSV."""
+    import csv
+    from pathlib import Path
+
+    last: dict[str, tuple[int, float, float, int]] = {}
+    with Path(curves_csv).open(newline="") as f:
+        for row in csv.DictReader(f):
+            step = int(row["env_steps"])
+            if row["method"] not in last or step > last[row["method"]][0]:
+                point = (step, float(row["mean"]), float(row["stderr"]), int(row["seeds"]))
+                last[row["method"]] = point
+    return {m: (mean, se, n) for m, (_, mean, se, n) in last.items()}
+
+
+def curves_line(name: str, a: str, b: str, points: dict) -> str:
+    """:func:`verdict_line` of methods ``a`` against ``b`` at their last curve points."""
+    (ma, sa, na), (mb, sb, nb) = points[a], points[b]
+    return verdict_line(name, (a, b), welch_summary(ma, sa, na, mb, sb, nb), (na, nb))
 
 
 def verdict_line(
