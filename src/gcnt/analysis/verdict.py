@@ -91,15 +91,21 @@ def welch_summary(
 def last_points(curves_csv) -> dict[str, tuple[float, float, int]]:
     """Each method's (mean, standard error, seeds) at its last step in a ``gcnt curves`` CSV."""
     import csv
-    from pathlib import Path
+    import io
 
+    from gcnt.files import MiB, read_text
+
+    text = read_text(curves_csv, 64 * MiB, "a gcnt curves CSV", ValueError)
     last: dict[str, tuple[int, float, float, int]] = {}
-    with Path(curves_csv).open(newline="") as f:
-        for row in csv.DictReader(f):
-            step = int(row["env_steps"])
-            if row["method"] not in last or step > last[row["method"]][0]:
-                point = (step, float(row["mean"]), float(row["stderr"]), int(row["seeds"]))
-                last[row["method"]] = point
+    for row in csv.DictReader(io.StringIO(text, newline="")):
+        step = int(row["env_steps"])
+        if row["method"] not in last or step > last[row["method"]][0]:
+            last[row["method"]] = (
+                step,
+                float(row["mean"]),
+                float(row["stderr"]),
+                int(row["seeds"]),
+            )
     return {m: (mean, se, n) for m, (_, mean, se, n) in last.items()}
 
 
