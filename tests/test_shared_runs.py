@@ -487,11 +487,11 @@ def test_the_analysis_commands_and_the_api_read_robots_from_the_record(tmp_path,
     recipe = tiny_td3_recipe(tmp_path / "r.yaml", test_robots=["hopper_4", "walker_3_main"])
     run = tmp_path / "run"
     assert gcnt_main(["train", str(recipe), f"run_dir={run}"]) == 0
-    _, lookups = _count_lookups(monkeypatch)
+    calls, lookups = _count_lookups(monkeypatch)
     for argv in (["curves", str(run)], ["zeroshot", str(run)]):
         assert gcnt_main([*argv, "--out", str(tmp_path / argv[0])]) == 0
-        assert lookups == [], argv
+        assert calls == lookups == [], argv
     gcnt.load_run(run)
-    assert lookups == []
+    assert calls == lookups == []
     gcnt.load_policy(run)
     assert sorted(lookups) == ["hopper_3", "hopper_4", "walker_3_main"]

@@ -71,7 +71,7 @@ def welch_summary(
 
     var = se_a**2 + se_b**2
     diff = mean_a - mean_b
-    t = diff / math.sqrt(var) if var > 0 else math.copysign(math.inf, diff) if diff else math.nan
+    t = diff / math.sqrt(var) if var > 0 else math.nan  # no spread at all: no test
     df = var**2 / (se_a**4 / (na - 1) + se_b**4 / (nb - 1)) if var > 0 else math.nan
     sd_a, sd_b = se_a * math.sqrt(na), se_b * math.sqrt(nb)
     return {

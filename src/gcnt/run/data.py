@@ -27,11 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from gcnt.files import MiB, read_json, read_yaml
-
-RECIPE_FILE = "recipe.yaml"
-METRICS_FILE = "metrics.jsonl"
-CHECKPOINT = "checkpoints/last.pt"
-
+from gcnt.run.layout import CHECKPOINT, METRICS_FILE, RECIPE_FILE
 
 #: Recipe keys that do not change the experiment a run is one seed of, so that runs differing
 #: only in them are seeds of one experiment (:attr:`Run.experiment`; a section's name stands for
@@ -503,7 +499,12 @@ class Run:
         """Rows of ``metrics.jsonl`` with a numeric ``env_steps``, ``null`` read as NaN
         (:func:`gcnt.run.metrics.read_metrics`: an incomplete last line, from a run stopped
         mid-write, is dropped with a warning; a damaged line before it is an AnalysisError
-        naming the file and line)."""
+        naming the file and line). Read once per :class:`Run`: a command's metrics and their
+        lengths, curves and per-seed rows, come from one reading."""
+        return list(self._metric_rows)
+
+    @cached_property
+    def _metric_rows(self) -> list[dict[str, Any]]:
         from gcnt.run.metrics import MetricsFileError, read_metrics
 
         try:

@@ -22,6 +22,7 @@ import torch
 from gcnt.files import GiB, append_text, open_regular, rename, save_torch, write_text
 from gcnt.recipes import Recipe, save_recipe
 from gcnt.run import provenance
+from gcnt.run.layout import CHECKPOINT, METRICS_FILE, RECIPE_FILE
 from gcnt.run.lock import RunBusyError, RunDirError, run_lock  # noqa: F401 (RunDirError: raised and caught as gcnt.run.directory's)
 from gcnt.run.metrics import (  # noqa: F401 (strict_json, read_metrics_row: used from here)
     MetricsFileError,
@@ -37,9 +38,6 @@ if TYPE_CHECKING:  # annotations only: the robots' module is not loaded with the
 
 log = logging.getLogger(__name__)
 
-RECIPE_FILE = "recipe.yaml"
-METRICS_FILE = "metrics.jsonl"
-CHECKPOINT = "checkpoints/last.pt"
 #: what training writes at an env step, ``<folder>/step<N><suffix>``: folder -> suffix
 STEP_FILES = {"eval": ".json", "videos": ".mp4"}
 #: the folder inside those for what a resumed run repeats (:meth:`RunDir.set_aside_after`)
