@@ -141,3 +141,31 @@ def test_the_compiled_line_and_the_shapes_peak(recipe_file, capsys, monkeypatch)
     out = capsys.readouterr().out
     assert out.count("compiled ÷ eager bare update") == 2 and out.count("compile time") == 2
     assert out.count("matmul rate at the update's own product shapes") == 2
+
+
+@pytest.mark.parametrize("threads", ["true", "false"])
+def test_the_update_by_part(recipe_file, capsys, threads):
+    """``--parts``: every part of the update in ms, with the in-turn column where the twin
+    critics run on two threads; the learner's methods and the module's functions are restored."""
+    import json
+
+    from gcnt.rl.td3 import learner as module
+
+    before = (module.apply_gradients, module.soft_update)
+    argv = ["bench-train", str(recipe_file), f"compile.twin_threads={threads}", "--parts"]
+    assert gcnt([*argv, "--updates", "2", "--rounds", "2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (module.apply_gradients, module.soft_update) == before
+    assert ("in_turn" in out) == (threads == "true")
+    for column in [c for c in ("in_turn", "as_run") if c in out]:
+        parts = out[column]
+        assert parts["update"] > 0 and parts["critic_step"] > 0 and parts["actor_step"] > 0
+        # the parts of a step lie inside it, and both steps inside the update
+        inside = parts["target_actor"] + parts["target_critics"] + parts["critics"]
+        assert inside + parts["critic_tail"] <= parts["critic_step"]
+        assert parts["actor_tail"] + parts["soft_update"] <= parts["actor_step"]
+        assert parts["critic_step"] + parts["actor_step"] <= parts["update"]
+    assert gcnt([*argv, "--updates", "2", "--rounds", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "target critics" in text and "whole update" in text
+    assert ("->" in text) == (threads == "true")

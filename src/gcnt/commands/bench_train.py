@@ -1,10 +1,10 @@
 """``gcnt bench-train``: what an update costs, and what the training pipeline adds to it.
 
 The measurements live with their algorithm: :mod:`gcnt.bench.td3` (the bare update with its
-operators per step and the previous layout's time, end to end, the replay sample, stacked seeds)
-and :mod:`gcnt.bench.ppo` (the bare iteration, end to end, collection with worker processes);
-:mod:`gcnt.bench.common` holds the matmul peak, FLOP and launch counts they share. Default
-recipe: the quick start.
+operators per step and the previous layout's time, end to end, the replay sample, stacked seeds),
+:mod:`gcnt.bench.td3_parts` (the update part by part), and :mod:`gcnt.bench.ppo` (the bare
+iteration, end to end, collection with worker processes); :mod:`gcnt.bench.common` holds the
+matmul peak, FLOP and launch counts they share. Default recipe: the quick start.
 """
 
 from __future__ import annotations
@@ -67,6 +67,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="TD3 instead: the bare update of two commits of this checkout (git worktrees), "
         "alternate rounds in fresh processes, B ÷ A (e.g. --commits b9623ac,HEAD)",
     )
+    p.add_argument(
+        "--parts",
+        action="store_true",
+        help="TD3 instead: the bare update of the recipe's schedule part by part (target actor, "
+        "target critics, critics, optimiser tails, actor, soft update), and where the twin "
+        "critics run on two threads the same operators in turn on one, alternate rounds",
+    )
     p.add_argument("--rounds", type=int, default=5, help="alternate rounds (median of them)")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
@@ -118,6 +125,10 @@ def _measure(args: argparse.Namespace, recipe) -> int:
         return run_commits(args)
 
     training_threads(recipe)
+    if args.parts:
+        from gcnt.bench.td3_parts import run_parts
+
+        return run_parts(args, recipe)
 
     if args.stacked_seeds is not None:
         return run_stacked(args, recipe)
