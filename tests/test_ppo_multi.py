@@ -315,16 +315,16 @@ def test_a_stopped_workers_error_is_raised_again_when_the_waiting_code_swallows_
     import time
     from types import SimpleNamespace
 
-    from gcnt.rl import loop
+    from gcnt.rl import worker_watch as watch
 
-    monkeypatch.setattr(loop, "STOPPED_WORKER_S", 0.2)
+    monkeypatch.setattr(watch, "STOPPED_WORKER_S", 0.2)
     sleeper = subprocess.Popen(["sleep", "60"])
     try:
         os.kill(sleeper.pid, signal.SIGSTOP)
         collector = SimpleNamespace(procs=[SimpleNamespace(pid=sleeper.pid, exitcode=None)])
         swallowed = []
-        with pytest.raises(loop.WorkerDiedError, match="has been stopped"):
-            with loop.worker_watch(collector, RunDir(tmp_path / "run"), every=0.05):
+        with pytest.raises(watch.WorkerDiedError, match="has been stopped"):
+            with watch.worker_watch(collector, RunDir(tmp_path / "run"), every=0.05):
                 deadline = time.monotonic() + 30
                 while time.monotonic() < deadline:
                     try:
