@@ -158,7 +158,9 @@ def test_the_update_by_part(recipe_file, capsys, threads):
     assert (module.apply_gradients, module.soft_update) == before
     assert ("in_turn" in out) == (threads == "true")
     for column in [c for c in ("in_turn", "as_run") if c in out]:
-        parts = out[column]
+        # the actor's halves run only where the critics run on two threads
+        assert (out[column]["actor"] is None) == (threads == "false")
+        parts = {k: v or 0.0 for k, v in out[column].items()}
         assert parts["update"] > 0 and parts["critic_step"] > 0 and parts["actor_step"] > 0
         # the parts of a step lie inside it, and both steps inside the update
         inside = parts["target_actor"] + parts["target_critics"] + parts["critics"]
@@ -168,4 +170,5 @@ def test_the_update_by_part(recipe_file, capsys, threads):
     assert gcnt([*argv, "--updates", "2", "--rounds", "1"]) == 0
     text = capsys.readouterr().out
     assert "target critics" in text and "whole update" in text
+    assert ("actor loss and gradients" in text) == (threads == "true")
     assert ("->" in text) == (threads == "true")

@@ -100,8 +100,9 @@ def timed_parts(learner, seconds: Counter) -> Iterator[None]:
 
 def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     """Each part's ms per update (the median of ``rounds`` rounds of about ``n_updates`` updates
-    each, whole ``policy_delay`` periods of every batch), as the recipe runs the twin critics and,
-    where that is on two threads, in turn on one thread (alternate rounds)."""
+    each, whole ``policy_delay`` periods of every batch; None for a part the update does not
+    enter), as the recipe runs the twin critics and, where that is on two threads, in turn on one
+    thread (alternate rounds)."""
     import torch
 
     from gcnt.bench.td3 import robot_batches
@@ -135,7 +136,13 @@ def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     learner.twin = runners["as_run"]
     out: dict = {"threads": torch.get_num_threads(), "updates_per_round": per_round}
     for name, got in rows.items():
-        out[name] = {key: statistics.median(r.get(key, 0.0) for r in got) for key, _, _ in PARTS}
+        # a part the update never enters (the actor's halves where the critics run in turn): None
+        out[name] = {
+            key: statistics.median(r.get(key, 0.0) for r in got)
+            if any(key in r for r in got)
+            else None
+            for key, _, _ in PARTS
+        }
     return out
 
 
@@ -155,12 +162,14 @@ def run_parts(args: argparse.Namespace, recipe) -> int:
     )
     for key, label, indented in PARTS:
         now = out["as_run"][key]
+        if now is None:
+            continue
         name = f"  {label}" if indented else label
         if not two:
             print(f"  {name:38s} {now:8.2f}")
             continue
         before = out["in_turn"][key]
-        ratio = f"({now / before:.2f})" if before > 0 else ""
+        ratio = f"({now / before:.2f})" if before else ""
         print(f"  {name:38s} {before:8.2f} -> {now:8.2f} {ratio}")
     run = out["as_run"]
     rest = run["update"] - run["critic_step"] - run["actor_step"]
