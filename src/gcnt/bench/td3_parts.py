@@ -164,6 +164,8 @@ def run_parts(args: argparse.Namespace, recipe) -> int:
         now = out["as_run"][key]
         if now is None:
             continue
+        if key == "critics" and not two:  # one vmapped call: the step backpropagates after it
+            label = "critics, forward (the backward in the step)"
         name = f"  {label}" if indented else label
         if not two:
             print(f"  {name:38s} {now:8.2f}")
