@@ -168,12 +168,12 @@ def run_parts(args: argparse.Namespace, recipe) -> int:
             label = "critics, forward (the backward in the step)"
         name = f"  {label}" if indented else label
         if not two:
-            print(f"  {name:38s} {now:8.2f}")
+            print(f"  {name:46s} {now:8.2f}")
             continue
         before = out["in_turn"][key]
         ratio = f"({now / before:.2f})" if before else ""
-        print(f"  {name:38s} {before:8.2f} -> {now:8.2f} {ratio}")
+        print(f"  {name:46s} {before:8.2f} -> {now:8.2f} {ratio}")
     run = out["as_run"]
     rest = run["update"] - run["critic_step"] - run["actor_step"]
-    print(f"  {'outside the two steps':38s} {rest:8.2f} (the step's batch handling, the losses)")
+    print(f"  {'outside the two steps':46s} {rest:8.2f} (the step's batch handling, the losses)")
     return 0
