@@ -172,3 +172,17 @@ def test_the_update_by_part(recipe_file, capsys, threads):
     assert "target critics" in text and "whole update" in text
     assert ("actor loss and gradients" in text) == (threads == "true")
     assert ("->" in text) == (threads == "true")
+
+
+@pytest.mark.slow
+def test_the_update_in_two_processes(recipe_file, capsys):
+    """``--processes``: the update alone and in two processes at once (the second one spawned
+    with the same recipe), each process's time and the throughput of both over one."""
+    import json
+
+    argv = ["bench-train", str(recipe_file), "--processes", "--updates", "2", "--rounds", "1"]
+    assert gcnt([*argv, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    t, o = out["together_ms"]
+    assert out["alone_ms"] > 0 and t > 0 and o > 0
+    assert out["throughput_ratio"] == pytest.approx(out["alone_ms"] * (1 / t + 1 / o))

@@ -98,6 +98,21 @@ def timed_parts(learner, seconds: Counter) -> Iterator[None]:
                 learner.__dict__[name] = fn
 
 
+def update_feed(recipe, n_updates: int, rounds: int) -> tuple:
+    """A TD3 learner for ``recipe``, the batches of one round in the order the schedule updates
+    on them (about ``n_updates / rounds`` updates, whole ``policy_delay`` periods of every batch:
+    :func:`gcnt.bench.td3.robot_batches`), and the updates of one such period."""
+    from gcnt.bench.td3 import robot_batches
+    from gcnt.rl.td3.learner import TD3Learner
+
+    env, batches = robot_batches(recipe)
+    learner = TD3Learner(recipe, env)
+    period = recipe.td3.policy_delay
+    cycle = period * len(batches)
+    per_round = max(cycle, -(-n_updates // rounds // cycle) * cycle)
+    return learner, [batches[i // period % len(batches)] for i in range(per_round)], cycle
+
+
 def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     """Each part's ms per update (the median of ``rounds`` rounds of about ``n_updates`` updates
     each, whole ``policy_delay`` periods of every batch; None for a part the update does not
@@ -105,19 +120,13 @@ def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     thread (alternate rounds)."""
     import torch
 
-    from gcnt.bench.td3 import robot_batches
-    from gcnt.rl.td3.learner import TD3Learner
     from gcnt.rl.td3.twin import EachInTurn
 
-    env, batches = robot_batches(recipe)
-    learner = TD3Learner(recipe, env)
+    learner, feed, cycle = update_feed(recipe, n_updates, rounds)
+    per_round = len(feed)
     runners = {"as_run": learner.twin}
     if learner.twin.parallel:
         runners = {"in_turn": EachInTurn(), **runners}
-    period = recipe.td3.policy_delay
-    cycle = period * len(batches)
-    per_round = max(cycle, -(-n_updates // rounds // cycle) * cycle)
-    feed = [batches[i // period % len(batches)] for i in range(per_round)]
     for runner in runners.values():  # warm-up: first calls allocate
         learner.twin = runner
         for b in feed[:cycle]:

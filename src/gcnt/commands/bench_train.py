@@ -2,9 +2,10 @@
 
 The measurements live with their algorithm: :mod:`gcnt.bench.td3` (the bare update with its
 operators per step and the previous layout's time, end to end, the replay sample, stacked seeds),
-:mod:`gcnt.bench.td3_parts` (the update part by part), and :mod:`gcnt.bench.ppo` (the bare
-iteration, end to end, collection with worker processes); :mod:`gcnt.bench.common` holds the
-matmul peak, FLOP and launch counts they share. Default recipe: the quick start.
+:mod:`gcnt.bench.td3_parts` (the update part by part), :mod:`gcnt.bench.td3_processes` (two
+processes at once) and :mod:`gcnt.bench.ppo` (the bare iteration, end to end, collection with
+worker processes); :mod:`gcnt.bench.common` holds the matmul peak, FLOP and launch counts they
+share. Default recipe: the quick start.
 """
 
 from __future__ import annotations
@@ -74,6 +75,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "target critics, critics, optimiser tails, actor, soft update), and where the twin "
         "critics run on two threads the same operators in turn on one, alternate rounds",
     )
+    p.add_argument(
+        "--processes",
+        action="store_true",
+        help="TD3 instead: the bare update (twin critics in turn, one thread) alone, then in two "
+        "processes at once: what a second process gets from the second core",
+    )
     p.add_argument("--rounds", type=int, default=5, help="alternate rounds (median of them)")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
@@ -129,6 +136,10 @@ def _measure(args: argparse.Namespace, recipe) -> int:
         from gcnt.bench.td3_parts import run_parts
 
         return run_parts(args, recipe)
+    if args.processes:
+        from gcnt.bench.td3_processes import run_processes
+
+        return run_processes(args, recipe)
 
     if args.stacked_seeds is not None:
         return run_stacked(args, recipe)
