@@ -186,3 +186,21 @@ def test_the_update_in_two_processes(recipe_file, capsys):
     t, o = out["together_ms"]
     assert out["alone_ms"] > 0 and t > 0 and o > 0
     assert out["throughput_ratio"] == pytest.approx(out["alone_ms"] * (1 / t + 1 / o))
+
+
+@pytest.mark.parametrize(
+    "recipe, options, says",
+    [
+        ("unimal/quickstart", ["--parts"], "--parts measures TD3 recipes"),
+        ("unimal/quickstart", ["--compiled"], "--compiled measures TD3 recipes"),
+        ("quickstart", ["--workers", "1,2"], "--workers measures PPO recipes"),
+        ("quickstart", ["--parts", "--processes"], "--parts and --processes each measure"),
+        ("quickstart", ["--stacked-seeds", "2", "--against", "td3.tau=0.01"], "--against adds"),
+    ],
+)
+def test_options_a_measurement_would_ignore_are_refused_in_one_line(recipe, options, says, capsys):
+    """Before: a PPO recipe with --parts ran PPO's report, and --compiled beside --parts was
+    dropped, without a word."""
+    assert gcnt(["bench-train", recipe, *options]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1

@@ -96,11 +96,59 @@ def recipe_and_overrides(recipe: str, overrides: list[str]) -> tuple[str, list[s
     return recipe, list(overrides)
 
 
+#: the options that measure something else instead of the default report, at most one per run
+INSTEAD = ("stacked_seeds", "commits", "parts", "processes", "workers")
+#: the options each algorithm's measurements read (the rest would be ignored without a word)
+ONLY_FOR = {
+    "td3": ("stacked_seeds", "commits", "parts", "processes", "compiled", "against"),
+    "ppo": ("workers",),
+}
+#: the options that add to the default TD3 report, not to an INSTEAD measurement
+ADD_TO_DEFAULT = ("compiled", "against")
+
+
+def _option(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _given(args: argparse.Namespace, name: str) -> bool:
+    value = getattr(args, name)
+    return value is not None if name == "stacked_seeds" else bool(value)
+
+
+def check_options(args: argparse.Namespace, algo: str) -> None:
+    """A one-line RecipeError for options that this recipe's measurement would ignore: two
+    INSTEAD options, an option of the other algorithm, or an ADD_TO_DEFAULT option beside an
+    INSTEAD one."""
+    from gcnt.recipes import RecipeError
+
+    instead = [n for n in INSTEAD if _given(args, n)]
+    if len(instead) > 1:
+        raise RecipeError(
+            f"{' and '.join(map(_option, instead))} each measure something else; "
+            "give one"
+        )
+    for other, names in ONLY_FOR.items():
+        for name in names:
+            if other != algo and algo in ONLY_FOR and _given(args, name):
+                raise RecipeError(
+                    f"{_option(name)} measures {other.upper()} recipes; "
+                    f"{args.recipe} is a {algo.upper()} recipe"
+                )
+    extra = [n for n in ADD_TO_DEFAULT if _given(args, n)]
+    if instead and extra:
+        raise RecipeError(
+            f"{_option(extra[0])} adds to the default report, not to "
+            f"{_option(instead[0])}"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     from gcnt.recipes import load_recipe
 
     args.recipe, args.overrides = recipe_and_overrides(args.recipe, args.overrides)
     recipe = load_recipe(args.recipe, args.overrides)
+    check_options(args, recipe.algo)
     # the report alone on the terminal: the training it times logs warnings only
     logger = logging.getLogger("gcnt")
     level = logger.level
