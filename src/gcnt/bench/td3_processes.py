@@ -73,19 +73,29 @@ def process_scaling(
     alone = timed_rounds()
     ctx = multiprocessing.get_context("spawn")
     barrier, queue = ctx.Barrier(2), ctx.Queue()
+    # a daemon: ended with this process, should it stop (Ctrl-C) or fail first
     proc = ctx.Process(
-        target=_second, args=(recipe_path, list(overrides), n_updates, rounds, barrier, queue)
+        target=_second,
+        args=(recipe_path, list(overrides), n_updates, rounds, barrier, queue),
+        daemon=True,
     )
     proc.start()
     try:
-        barrier.wait(BARRIER_S)
-    except threading.BrokenBarrierError:
-        got = queue.get(timeout=30) if proc.is_alive() or not queue.empty() else None
+        try:
+            barrier.wait(BARRIER_S)
+        except threading.BrokenBarrierError:
+            got = queue.get(timeout=30) if proc.is_alive() or not queue.empty() else None
+            raise RuntimeError(f"the second process did not start its rounds: {got}") from None
+        together = timed_rounds()
+        other: Any = queue.get(timeout=BARRIER_S)
+    except BaseException:
+        proc.terminate()
+        raise
+    finally:
         proc.join(30)
-        raise RuntimeError(f"the second process did not start its rounds: {got}") from None
-    together = timed_rounds()
-    other: Any = queue.get(timeout=BARRIER_S)
-    proc.join(30)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(10)
     if isinstance(other, str):
         raise RuntimeError(f"the second process failed: {other}")
     a, t, o = (statistics.median(x) for x in (alone, together, other))
