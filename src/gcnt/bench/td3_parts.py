@@ -113,6 +113,23 @@ def update_feed(recipe, n_updates: int, rounds: int) -> tuple:
     return learner, [batches[i // period % len(batches)] for i in range(per_round)], cycle
 
 
+def warm_up(learner, feed: list, cycle: int) -> None:
+    """One ``policy_delay`` period of every batch (first calls allocate; the actor step runs)."""
+    for b in feed[:cycle]:
+        learner.update(b)
+
+
+def round_seconds(learner, feed: list) -> float:
+    """The wall time of one round: an update on each batch of ``feed``, waited for on the
+    device."""
+    import torch
+
+    start = time.perf_counter()
+    losses = [learner.step(b)["loss_critic"] for b in feed]
+    torch.stack(losses).sum().item()
+    return time.perf_counter() - start
+
+
 def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     """Each part's ms per update (the median of ``rounds`` rounds of about ``n_updates`` updates
     each, whole ``policy_delay`` periods of every batch; None for a part the update does not
@@ -127,20 +144,16 @@ def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     runners = {"as_run": learner.twin}
     if learner.twin.parallel:
         runners = {"in_turn": EachInTurn(), **runners}
-    for runner in runners.values():  # warm-up: first calls allocate
+    for runner in runners.values():
         learner.twin = runner
-        for b in feed[:cycle]:
-            learner.update(b)
+        warm_up(learner, feed, cycle)
     rows: dict[str, list[dict]] = {name: [] for name in runners}
     for _ in range(rounds):
         for name, runner in runners.items():
             learner.twin = runner
             seconds: Counter = Counter()
             with timed_parts(learner, seconds):
-                start = time.perf_counter()
-                losses = [learner.step(b)["loss_critic"] for b in feed]
-                torch.stack(losses).sum().item()  # wait for the device
-                seconds["update"] = time.perf_counter() - start
+                seconds["update"] = round_seconds(learner, feed)
             rows[name].append({k: 1e3 * v / per_round for k, v in seconds.items()})
     learner.twin = runners["as_run"]
     out: dict = {"threads": torch.get_num_threads(), "updates_per_round": per_round}

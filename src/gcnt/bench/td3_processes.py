@@ -16,7 +16,6 @@ import json
 import multiprocessing
 import statistics
 import threading
-import time
 from typing import Any
 
 #: how long either process waits at the barrier for the other (building the env and learner
@@ -27,27 +26,18 @@ BARRIER_S = 600.0
 def _in_turn(recipe, n_updates: int, rounds: int):
     """A learner with its twin critics in turn on one thread, warmed up, and a function that
     times ``rounds`` rounds of its update (ms per update each)."""
-    import torch
-
     from gcnt.bench.td3 import training_threads
-    from gcnt.bench.td3_parts import update_feed
+    from gcnt.bench.td3_parts import round_seconds, update_feed, warm_up
     from gcnt.rl.td3.twin import EachInTurn
 
     training_threads(recipe)
     learner, feed, cycle = update_feed(recipe, n_updates, rounds)
     if learner.twin.parallel:
         learner.twin = EachInTurn()
-    for b in feed[:cycle]:
-        learner.update(b)
+    warm_up(learner, feed, cycle)
 
     def timed_rounds() -> list[float]:
-        out = []
-        for _ in range(rounds):
-            start = time.perf_counter()
-            losses = [learner.step(b)["loss_critic"] for b in feed]
-            torch.stack(losses).sum().item()
-            out.append(1e3 * (time.perf_counter() - start) / len(feed))
-        return out
+        return [1e3 * round_seconds(learner, feed) / len(feed) for _ in range(rounds)]
 
     return timed_rounds, len(feed)
 

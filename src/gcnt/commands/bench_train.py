@@ -125,21 +125,19 @@ def check_options(args: argparse.Namespace, algo: str) -> None:
     instead = [n for n in INSTEAD if _given(args, n)]
     if len(instead) > 1:
         raise RecipeError(
-            f"{' and '.join(map(_option, instead))} each measure something else; "
-            "give one"
+            f"{' and '.join(map(_option, instead))} each measure something else; give one"
         )
     for other, names in ONLY_FOR.items():
-        for name in names:
-            if other != algo and algo in ONLY_FOR and _given(args, name):
-                raise RecipeError(
-                    f"{_option(name)} measures {other.upper()} recipes; "
-                    f"{args.recipe} is a {algo.upper()} recipe"
-                )
+        given = [n for n in names if _given(args, n)]
+        if other != algo and algo in ONLY_FOR and given:
+            raise RecipeError(
+                f"{_option(given[0])} measures {other.upper()} recipes; "
+                f"{args.recipe} is a {algo.upper()} recipe"
+            )
     extra = [n for n in ADD_TO_DEFAULT if _given(args, n)]
     if instead and extra:
         raise RecipeError(
-            f"{_option(extra[0])} adds to the default report, not to "
-            f"{_option(instead[0])}"
+            f"{_option(extra[0])} adds to the default report, not to {_option(instead[0])}"
         )
 
 
