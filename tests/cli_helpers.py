@@ -25,6 +25,7 @@ collector: {{total_frames: 40}}
 td3: {{init_random_frames: 20, steps_per_batch: 5, batch_size: 8, buffer_size_per_robot: 2000,
       updates_per_step: 0.25}}
 network: {{kwargs: {{d_model: 16, layers: 1, ff: 16, heads: 2}}}}
+compile: {{twin_processes: false}}  # tests/test_twin_processes.py tests the helper process
 logger: {{backend: none, progress: {progress}, log_interval: 20}}
 eval: {{episodes: 1, interval: 0{eval_robots}}}
 checkpoint_interval: 20

@@ -163,6 +163,12 @@ class CompileConfig:
     #: the update runs eagerly on a CPU with 2 to 4 usable cores, without dropout, and
     #: torch_threads is unset or 1
     twin_threads: bool | None = None
+    #: TD3: where the twin critics run at once (twin_threads, on or automatic), run them in two
+    #: processes instead of two threads: the second critic, the second target critic and half of
+    #: the target actor's and the actor's batch in a helper process on shared-memory weights
+    #: (two threads share one interpreter lock, which every small operator holds; two processes
+    #: do not). CPU only; a compiled or graphed update runs its critics in one call instead
+    twin_processes: bool = False
 
     #: float32 matrix products (``torch.set_float32_matmul_precision``, set for the run and
     #: recorded in ``resolved``): highest | high | medium, or auto (default): on a CPU, medium

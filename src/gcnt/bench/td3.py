@@ -67,6 +67,9 @@ def step_operators(learner, batch, device: str) -> dict:
     update (the actor step once every ``policy_delay`` updates), counted on one thread
     (:func:`on_this_thread`)."""
     with on_this_thread(learner):
+        # once uncounted: where a helper process ran critic 2, this thread builds its views now
+        learner.critic_step(batch)
+        learner.actor_step(batch)
         critic, critic_work = count_operators(lambda: learner.critic_step(batch), device)
         actor, actor_work = count_operators(lambda: learner.actor_step(batch), device)
     delay = learner.config.policy_delay
@@ -92,6 +95,7 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5, against=None) -> d
     import torch
 
     from gcnt.rl.td3.learner import TD3Learner
+    from gcnt.rl.td3.twin_process import InTwoProcesses
 
     env, batches = robot_batches(recipe)
     learners = {"new": TD3Learner(recipe, env), "previous": TD3Learner(recipe, env, pair=True)}
@@ -133,6 +137,7 @@ def bare_update_rate(recipe, n_updates: int, rounds: int = 5, against=None) -> d
     if against is not None:
         out["ratio_to_against"] = out["new"]["update_ms"] / out["against"]["update_ms"]
     out["twin_threads"] = learners["new"].twin.parallel
+    out["twin_processes"] = isinstance(learners["new"].twin, InTwoProcesses)
     return out
 
 
@@ -527,6 +532,7 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
             "previous_update_ms": m["previous"]["update_ms"],
             "previous_operators": m["previous"]["operators"],
             "twin_threads": m["twin_threads"],
+            "twin_processes": m["twin_processes"],
             "one_call": m.get("one_call"),
             # new ÷ previous bare update time, alternate rounds of one run
             "ratio_to_previous": m["ratio_to_previous"],
@@ -574,7 +580,10 @@ def run_td3(args: argparse.Namespace, recipe) -> int:
                 f"{ops['working_per_update']:,.0f} per update, previous "
                 f"{prev['working_per_update']:,.0f}"
             )
-        how = "members on two threads" if row["twin_threads"] else "members in one call"
+        how = "members in one call"
+        if row["twin_threads"]:
+            two = "processes" if row["twin_processes"] else "threads"
+            how = f"members on two {two}"
         print(
             f"       critic ensemble, {how}; previous update (two critic networks) "
             f"{row['previous_update_ms']:.1f} ms; new ÷ previous {row['ratio_to_previous']:.2f} "

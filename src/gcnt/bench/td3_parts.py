@@ -138,6 +138,7 @@ def update_parts(recipe, n_updates: int, rounds: int) -> dict:
     import torch
 
     from gcnt.rl.td3.twin import EachInTurn
+    from gcnt.rl.td3.twin_process import InTwoProcesses
 
     learner, feed, cycle = update_feed(recipe, n_updates, rounds)
     per_round = len(feed)
@@ -157,6 +158,8 @@ def update_parts(recipe, n_updates: int, rounds: int) -> dict:
             rows[name].append({k: 1e3 * v / per_round for k, v in seconds.items()})
     learner.twin = runners["as_run"]
     out: dict = {"threads": torch.get_num_threads(), "updates_per_round": per_round}
+    # where the recipe runs critic 2 in a helper process, the parts are this process's share
+    out["twin_processes"] = isinstance(runners["as_run"], InTwoProcesses)
     for name, got in rows.items():
         # a part the update never enters (the actor's halves where the critics run in turn): None
         out[name] = {
@@ -176,7 +179,8 @@ def run_parts(args: argparse.Namespace, recipe) -> int:
         print(json.dumps(out))
         return 0
     two = "in_turn" in out
-    head = "in turn, one thread -> two threads (ratio)" if two else "as the recipe runs it"
+    at_once = "two processes (this one's parts)" if out["twin_processes"] else "two threads"
+    head = f"in turn, one thread -> {at_once} (ratio)" if two else "as the recipe runs it"
     print(
         f"the bare TD3 update by part, ms per update ({recipe.td3.schedule} schedule, "
         f"{out['threads']} torch threads; medians of {args.rounds} rounds of "

@@ -56,6 +56,7 @@ NOT_THE_EXPERIMENT = (
     "compile.warmup",
     "compile.torch_threads",
     "compile.twin_threads",
+    "compile.twin_processes",
     "td3.checkpoint_buffers",
     "resolved",
     "plugins",

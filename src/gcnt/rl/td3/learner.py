@@ -18,7 +18,8 @@ collected batch to :meth:`TD3.process`):
    (:class:`~gcnt.rl.td3.ensemble.Ensemble`: the two critics' parameters stacked; the two
    target critics likewise), evaluated under one vmap with one backward, or, on a CPU with 2 to
    4 cores, one member per thread, each with its own backward (:mod:`~gcnt.rl.td3.twin`,
-   ``compile.twin_threads``); then :func:`apply_gradients` (clip → Adam step → zero_grad; one
+   ``compile.twin_threads``), or the second member in a helper process
+   (:mod:`~gcnt.rl.td3.twin_process`, ``compile.twin_processes``); then :func:`apply_gradients` (clip → Adam step → zero_grad; one
    fused Adam over the stacked parameters);
 5. **delayed actor and target step** (:func:`delayed_update`, every ``policy_delay`` critic
    steps, :meth:`TD3Learner._actor_step`): -Q1 of the actor's action
@@ -147,6 +148,7 @@ class TD3Learner:
             compiled=self.accel.compile is True or self.accel.cudagraphs,
             dropout=has_dropout(critics[0]),
             torch_threads=self.accel.torch_threads,
+            processes=self.accel.twin_processes and not pair,
         )
         # compile.compile: each step's loss forward as one graph (no graph break), its backward
         # through AOTAutograd; the optimiser tail runs eagerly
@@ -174,24 +176,44 @@ class TD3Learner:
             self.f_critics = [TensorChain(c) for c in self.critics]
             self.f_target_critics = [TensorChain(c) for c in self.target_critics]
 
+    #: the four networks of a learner, by attribute
+    NETWORKS = ("actor", "critics", "target_actor", "target_critics")
+
     def loss_shell(self) -> TD3Learner:
         """A learner with copies of this one's networks and settings, and no optimiser or
         step: its :meth:`critic_loss` and :meth:`actor_loss` run with whatever parameters are
         swapped into its networks (``gcnt.rl.td3.stacked`` swaps each seed's in, leaving the seeds'
         own modules untouched)."""
+        shell = self._shell(copy.deepcopy)
+        shell.twin = InTurn()  # vmapped by the stacked learner: no threads inside
+        return shell
+
+    def process_shell(self) -> TD3Learner:
+        """A learner holding this one's networks themselves (not copies) and settings, and no
+        optimiser or step: what the twin critics' helper process runs the losses of
+        (:mod:`gcnt.rl.td3.twin_process`), on parameters shared with this process."""
+        shell = self._shell(lambda net: net)
+        shell.actor_params, shell.critic_params = self.actor_params, self.critic_params
+        shell.actor_forward = shell.actor_loss
+        return shell
+
+    def _shell(self, take: Callable[[torch.nn.Module], torch.nn.Module]) -> TD3Learner:
+        """A learner with this one's settings and ``take`` of each of its networks."""
         shell = object.__new__(type(self))
         shell.recipe, shell.config, shell.accel = self.recipe, self.config, self.accel
-        shell.rule, shell.pair = self.rule, self.pair
-        shell.twin = InTurn()  # vmapped by the stacked learner: no threads inside
-        shell.device = self.device
-        shell.actor, shell.critics = copy.deepcopy(self.actor), copy.deepcopy(self.critics)
-        shell.target_actor = copy.deepcopy(self.target_actor)
-        shell.target_critics = copy.deepcopy(self.target_critics)
+        shell.rule, shell.pair, shell.device = self.rule, self.pair, self.device
+        for name in self.NETWORKS:
+            setattr(shell, name, take(getattr(self, name)))
         if not shell.pair:
             shell.critics.views()
         shell._chains()
         shell.updates = self.updates
         return shell
+
+    def shared_tensors(self) -> list[torch.Tensor]:
+        """Every parameter and buffer of the four networks (what a helper process reads)."""
+        nets = [getattr(self, name) for name in self.NETWORKS]
+        return [t for n in nets for t in (*n.parameters(), *n.buffers())]
 
     def _twin(
         self,
@@ -353,7 +375,8 @@ class TD3Learner:
         """One critic update on ``batch``; returns ``loss_critic``. The target-smoothing noise
         is drawn here, outside the compiled loss, so a compiled step draws what eager draws."""
         noise = self.padded_noise(batch.get(ACTION))
-        loss = self.critic_forward(batch, noise)
+        with self.twin.step(self, "critic", batch, noise):
+            loss = self.critic_forward(batch, noise)
         if not self.twin.parallel:
             loss.backward()
         apply_gradients(
@@ -371,7 +394,8 @@ class TD3Learner:
         gradients do too, each thread on one half of the batch (:meth:`_actor_grads`)."""
         o = self.config
         if self.twin.parallel and not self.pair and batch.numel() >= 2:
-            loss, grads = self._actor_grads(batch)
+            with self.twin.step(self, "actor", batch):
+                loss, grads = self._actor_grads(batch)
         else:
             loss = self.actor_forward(batch)
             # gradients for the actor only (the critic is a fixed function here)
@@ -382,7 +406,7 @@ class TD3Learner:
         soft_update(self._target, self._online, o.tau)
         return TensorDict({"loss_actor": loss.detach()})
 
-    def _actor_grads(self, batch: TensorDictBase) -> tuple[torch.Tensor, list]:
+    def _actor_grads(self, batch: TensorDictBase) -> tuple[torch.Tensor, list] | None:
         """The actor loss and its gradients as two halves of ``batch`` give them, one half per
         thread (:attr:`twin`): every loss rule is a mean over the batch's samples, so the
         whole batch's is the halves' means weighted by their sizes, and so are its gradients
@@ -394,10 +418,16 @@ class TD3Learner:
             loss = self.actor_forward(part) * (part.shape[0] / n)
             return loss.detach(), torch.autograd.grad(loss, self.actor_params, allow_unused=True)
 
-        (loss_a, grads_a), (loss_b, grads_b) = self.twin.map(half, halves)
-        grads = [
-            b if a is None else a if b is None else a + b
-            for a, b in zip(grads_a, grads_b, strict=True)
+        parts = self.twin.map(half, halves, gather=True)
+        if parts is None:  # a helper process's half, sent to the process that steps the actor
+            return None
+        (loss_a, grads_a), (loss_b, grads_b) = parts
+        pairs = list(zip(grads_a, grads_b, strict=True))
+        both = [(a, b) for a, b in pairs if a is not None and b is not None]
+        if both:  # into the first half's gradients, which nothing else holds
+            torch._foreach_add_([a for a, _ in both], [b for _, b in both])
+        grads = [  # the second half's own where the first has none (a copy: it may be a view)
+            a if a is not None else None if b is None else b.clone() for a, b in pairs
         ]
         return loss_a + loss_b, grads
 

@@ -12,11 +12,14 @@ member's operations are those of a network of its own, in the same order as in t
 gradients of both land in the stacked parameters' one gradient (each member's slice of it).
 
 :class:`InTurn` and :class:`AtOnce` share one method, ``map(fn, (a, b)) -> [fn(a), fn(b)]``;
-:func:`make_pair_runner` picks one for a recipe's ``compile.twin_threads``.
+:func:`make_pair_runner` picks one for a recipe's ``compile.twin_threads``, or, with
+``compile.twin_processes``, :class:`~gcnt.rl.td3.twin_process.InTwoProcesses`: the second member
+in a helper process, which two threads' shared interpreter lock does not slow.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from collections.abc import Callable, Sequence
@@ -26,6 +29,7 @@ from typing import Any
 import torch
 
 from gcnt.envs.stepper import usable_cpus
+from gcnt.rl.td3.twin_process import InTwoProcesses
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +39,14 @@ class InTurn:
 
     parallel = False
 
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
+    def step(self, learner: Any, kind: str, *args: Any) -> contextlib.AbstractContextManager:
+        """Where a step's ``map`` calls run (a helper process is told what the step computes,
+        :class:`~gcnt.rl.td3.twin_process.InTwoProcesses`); here, nothing to tell."""
+        return contextlib.nullcontext()
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], gather: bool = False) -> list:
+        """``[fn(x) for x in items]``; ``gather``: only the calling process needs the results
+        (one of two processes gets None, :mod:`~gcnt.rl.td3.twin_process`)."""
         return [fn(x) for x in items]
 
 
@@ -57,12 +68,13 @@ class AtOnce:
     beside a busy loop on a 2-core machine)."""
 
     parallel = True
+    step = InTurn.step
 
     def __init__(self) -> None:
         self._pool: ThreadPoolExecutor | None = None
         self._pid = os.getpid()
 
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], gather: bool = False) -> list:
         first, second = items
         if self._pid != os.getpid():  # a forked child: the parent's helper thread is not here
             self._pool, self._pid = None, os.getpid()
@@ -100,11 +112,14 @@ def make_pair_runner(
     compiled: bool,
     dropout: bool,
     torch_threads: int | None = None,
-) -> InTurn | AtOnce:
+    processes: bool = False,
+) -> InTurn | AtOnce | InTwoProcesses:
     """``compile.twin_threads``: True -> :class:`AtOnce`, False -> :class:`InTurn`; None (auto)
     -> :class:`AtOnce` when the update runs eagerly on a CPU with 2 to 4 usable cores, the
     critics have no active dropout and ``compile.torch_threads`` is unset or 1 (with more cores,
     or more intra-op threads asked for, torch's own threads are left to use them).
+    ``processes`` (``compile.twin_processes``): where the members run at once, they run in two
+    processes (:class:`~gcnt.rl.td3.twin_process.InTwoProcesses`) instead of two threads.
 
     Dropout draws from torch's one global generator, and two threads would draw in an order
     that changes from run to run (a seeded run would not repeat), so ``True`` with dropout is
@@ -123,4 +138,6 @@ def make_pair_runner(
             and (torch_threads or 1) == 1
             and 2 <= usable_cpus() <= 4
         )
-    return AtOnce() if setting else InTurn()
+    if not setting:
+        return InTurn()
+    return InTwoProcesses() if processes and device.type == "cpu" else AtOnce()
