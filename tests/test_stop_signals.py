@@ -63,3 +63,27 @@ def test_an_unfilled_siginfo_or_an_interrupted_wait_leaves_the_watcher_taking_si
             time.sleep(0.01)
         watcher = [t for t in threading.enumerate() if t.name == "gcnt-stop-signals"]
         assert stop.signame == "SIGTERM" and watcher and watcher[0].is_alive()
+
+
+def test_the_watcher_polls_and_never_sleeps_inside_sigtimedwait(monkeypatch):
+    """A sigtimedwait that sleeps can be cut short as its time runs out and then returns a
+    siginfo never filled in, which may hold an earlier stop signal's number (a second SIGINT that
+    was never sent): the watcher only polls (timeout 0) and sleeps on its own event."""
+    import gcnt.rl.stop as stop_module
+
+    timeouts: list[float] = []
+    real_wait = signal.sigtimedwait
+
+    def recording_wait(signals, timeout):
+        timeouts.append(timeout)
+        return real_wait(signals, timeout)
+
+    monkeypatch.setattr(stop_module.signal, "sigtimedwait", recording_wait)
+    with stop_on_signals() as stop:
+        time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGTERM)
+        deadline = time.monotonic() + 10
+        while not stop.requested and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert stop.signame == "SIGTERM"
+    assert len(timeouts) >= 2 and set(timeouts) == {0}

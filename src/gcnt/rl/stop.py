@@ -25,6 +25,9 @@ import threading
 #: EX_TEMPFAIL: try again later), so that a sweep tells an interrupted run from a failed one
 EXIT_STOPPED = 75
 
+#: seconds between two looks for a pending stop signal
+POLL_S = 0.2
+
 SIGNALS = tuple(
     s for s in (signal.SIGTERM, signal.SIGINT, getattr(signal, "SIGUSR2", None)) if s is not None
 )
@@ -71,13 +74,16 @@ class StopRequest:
         thread)."""
         wanted = {int(s) for s in SIGNALS}
         while not self._closing.is_set():
+            # a poll (timeout 0), the sleep between polls on an event: a sigtimedwait that sleeps
+            # and is cut short by another signal (the SIGALRM of training's timers, a SIGCONT)
+            # as its time runs out returns a siginfo that was never filled in (CPython 3.11),
+            # which may still hold an earlier signal's number
             try:
-                info = signal.sigtimedwait(SIGNALS, 0.2)
-            except OSError:  # interrupted by another signal (a timer's): wait again
-                continue
-            # a wait cut short by another signal (the SIGALRM of training's timers) can come
-            # back with a siginfo that was never filled in: only the stop signals count
+                info = signal.sigtimedwait(SIGNALS, 0)
+            except OSError:
+                info = None
             if info is None or info.si_signo not in wanted:
+                self._closing.wait(POLL_S)
                 continue
             if info.si_signo == signal.SIGINT and self.signame == "SIGINT":
                 _thread.interrupt_main()
