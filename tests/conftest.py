@@ -21,6 +21,15 @@ from cli_helpers import tiny_td3_recipe
 from gcnt import plugins
 from gcnt.cli import main as gcnt_cli
 
+try:  # the Slurm extra
+    # imported here, before any test: its import configures logging, which closes every handler
+    # there is; absl's (made when dm_control loads) then closes the stream it was made with, the
+    # session's capture file, when a test under capsys is the first to import it (gcnt sweep
+    # --slurm), and pytest fails at its end ("I/O operation on closed file")
+    import submitit  # noqa: F401
+except ImportError:
+    pass
+
 #: the variable naming the user's robot-set folder (gcnt.data_folders)
 MORPHOLOGIES_ENV = "GCNT_MORPHOLOGIES"
 
